@@ -1,0 +1,21 @@
+"""The ``gridplace`` command line."""
+
+from __future__ import annotations
+
+import typer
+
+from service.cli import bench as bench_commands
+from service.cli import model_commands
+
+app = typer.Typer(
+    name="gridplace",
+    help="Visual place recognition with sub-linear storage growth.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+model_commands.register(app)
+app.add_typer(bench_commands.app, name="bench")
+
+
+def main() -> None:
+    app()

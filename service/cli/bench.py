@@ -1,0 +1,25 @@
+"""``gridplace bench …``: benchmarks that print figures and write JSON."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="Benchmarks (figures printed and written as JSON).", no_args_is_help=True)
+
+
+@app.command("train")
+def bench_train(
+    n_frames: Annotated[int, typer.Option(help="route length N")] = 10_000,
+    n_features: Annotated[int, typer.Option(help="descriptor size d")] = 4096,
+    patterns: Annotated[int, typer.Option(help="k")] = 2,
+    rho: Annotated[float, typer.Option()] = 0.5,
+    trainers: Annotated[str, typer.Option(help="comma-separated")] = "logreg,svm,ridge,torch",
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-train.json"),
+) -> None:
+    """Training time, precision@5, query time and footprint per trainer, in one run."""
+    from service.bench.train_bench import run_train_bench
+
+    run_train_bench(n_frames, n_features, patterns, rho, trainers.split(","), out)

@@ -1,0 +1,30 @@
+"""Turning gridplace errors into a clear message and a non-zero exit code."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import ParamSpec, TypeVar
+
+import typer
+from rich.console import Console
+
+from service.errors import GridplaceError
+
+P = ParamSpec("P")
+R = TypeVar("R")
+err_console = Console(stderr=True)
+
+
+def cli_errors(fn: Callable[P, R]) -> Callable[P, R]:
+    """Print a :class:`GridplaceError` as ``error [code]: message`` and exit 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return fn(*args, **kwargs)
+        except GridplaceError as exc:
+            err_console.print(f"[bold red]error[/] [{exc.code}]: {exc.message}", highlight=False)
+            raise typer.Exit(code=2) from exc
+
+    return wrapper

@@ -1,0 +1,119 @@
+"""``gridplace train | localize | evaluate | demo``: the library on ``.npy`` files."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from service.cli.errors import cli_errors
+from service.encoding import ModelParams, build_model, load_model, load_npy, save_model
+from service.encoding.chunked import ChunkedPlaceEncoder
+from service.encoding.evaluation import evaluate as evaluate_model
+from service.encoding.validation import check_descriptors
+
+console = Console()
+
+
+def _parse_periods(text: str | None) -> tuple[int, ...] | None:
+    if not text:
+        return None
+    try:
+        return tuple(int(p) for p in text.replace("x", ",").split(",") if p.strip())
+    except ValueError as exc:
+        raise typer.BadParameter(f"periods must be integers separated by commas: {text!r}") from exc
+
+
+@cli_errors
+def train(
+    reference: Annotated[Path, typer.Argument(help=".npy descriptors, rows in route order")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory")],
+    patterns: Annotated[int, typer.Option("--patterns", "-k", help="number of encoders k")] = 2,
+    periods: Annotated[Optional[str], typer.Option(help="explicit periods, e.g. 60,60")] = None,
+    rho: Annotated[float, typer.Option(help="fraction of columns per encoder")] = 0.5,
+    gamma: Annotated[Optional[float], typer.Option(help="L1 bound (default sqrt(d'))")] = None,
+    trainer: Annotated[str, typer.Option(help="logreg | svm | ridge | torch")] = "logreg",
+    c: Annotated[float, typer.Option("--C", help="inverse regularisation")] = 4.0,
+    decode: Annotated[str, typer.Option(help="joint | argmax")] = "joint",
+    dtype: Annotated[str, typer.Option(help="float64 | float32 | float16 | int8")] = "float32",
+    chunks: Annotated[int, typer.Option(help="number of chunks (1 = none)")] = 1,
+    chunk_rho: Annotated[Optional[float], typer.Option(help="rho of the chunk classifier")] = None,
+    top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
+    n_jobs: Annotated[int, typer.Option(help="parallel chunk trainers (-1 = all cores)")] = 1,
+) -> None:
+    """Train a model on a route and save it as a new artifact."""
+    params = ModelParams.parse(
+        n_patterns=patterns, periods=_parse_periods(periods), rho=rho, gamma=gamma,
+        trainer=trainer, C=c, decode=decode, dtype=dtype, n_chunks=chunks, chunk_rho=chunk_rho,
+        top_chunks=top_chunks, n_jobs=n_jobs,
+    )  # fmt: skip
+    X = check_descriptors(load_npy(reference), min_rows=2, what=str(reference))
+    model = build_model(params)
+    start = time.perf_counter()
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:  # fmt: skip
+        task = bar.add_task(f"training {model.kind} on {X.shape[0]} frames", total=None)
+        if isinstance(model, ChunkedPlaceEncoder):
+            model.fit(X, progress=lambda stage, done, total: bar.update(task, completed=done, total=total))
+        else:
+            model.fit(X)
+    seconds = time.perf_counter() - start
+    manifest = save_model(model, out, extra={"train_seconds": seconds, "source": str(reference)})
+    fp = manifest["footprint"]
+    console.print(
+        f"saved {out}: N={model.n_frames_} d={model.n_features_in_} "
+        f"paper={fp['paper_bytes']:.0f} B actual={fp['actual_bytes']} B in {seconds:.1f}s"
+    )
+
+
+@cli_errors
+def localize(
+    model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
+    queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="write indices (.npy)")] = None,
+    confidence_out: Annotated[Optional[Path], typer.Option(help="write confidences (.npy)")] = None,
+) -> None:
+    """Predict the frame index of every query row."""
+    model = load_model(model_dir)
+    loc = model.localize(load_npy(queries))
+    if out is not None:
+        np.save(out, loc.index)
+    if confidence_out is not None:
+        np.save(confidence_out, loc.confidence)
+    if out is None:
+        for i, c in zip(loc.index, loc.confidence, strict=True):
+            typer.echo(f"{int(i)}\t{float(c):.4f}")
+
+
+@cli_errors
+def evaluate(
+    model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
+    queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
+    tolerance: Annotated[int, typer.Option(help="frames of tolerance")] = 0,
+    ground_truth: Annotated[Optional[Path], typer.Option(help="int .npy: query i -> frame")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
+) -> None:
+    """Precision within a tolerance, query time and storage of a saved model."""
+    model = load_model(model_dir)
+    truth = load_npy(ground_truth) if ground_truth is not None else None
+    result = evaluate_model(model, load_npy(queries), truth, tolerance)
+    if as_json:
+        typer.echo(json.dumps(result))
+        return
+    console.print(
+        f"precision@{tolerance}: {result['precision']:.4f} on {result['n']} queries; "
+        f"footprint {result['footprint_bytes']} B (paper formula {result['paper_bytes']:.0f} B); "
+        f"{result['query_seconds_per_descriptor'] * 1e6:.1f} µs/query"
+    )
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(train)
+    app.command()(localize)
+    app.command()(evaluate)

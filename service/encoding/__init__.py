@@ -1,0 +1,38 @@
+"""The algorithm core of gridplace: a scikit-learn style library with no web, queue or
+registry dependency.
+
+>>> from service.encoding import PhaseEncoder
+>>> model = PhaseEncoder(n_patterns=2, rho=0.5).fit(reference)   # rows in route order
+>>> model.predict(queries)                                        # frame indices
+"""
+
+from service.encoding.artifacts import load_model, read_manifest, save_model
+from service.encoding.base import Localization, PlaceRecognizer, precision_at
+from service.encoding.baselines import ExactNN, RhythmicEncoder
+from service.encoding.chunked import ChunkedPlaceEncoder
+from service.encoding.encoder import PhaseEncoder
+from service.encoding.factory import build_model, ModelParams
+from service.encoding.footprint import Footprint
+from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
+from service.encoding.validation import check_descriptors, load_npy
+
+__all__ = [
+    "ChunkedPlaceEncoder",
+    "ExactNN",
+    "Footprint",
+    "Localization",
+    "ModelParams",
+    "PhaseEncoder",
+    "PlaceRecognizer",
+    "RhythmicEncoder",
+    "auto_periods",
+    "build_model",
+    "check_descriptors",
+    "index_to_labels",
+    "labels_to_index",
+    "load_model",
+    "load_npy",
+    "precision_at",
+    "read_manifest",
+    "save_model",
+]

@@ -1,0 +1,257 @@
+"""Long routes: C contiguous chunks, one phase encoder each, and a chunk classifier.
+
+A query goes chunk classifier → its ``top_chunks`` most likely chunks → each chunk's encoder
+→ the candidate with the best joint log-probability (chunk and digits together) → global
+index. Chunks train independently (in parallel processes with ``n_jobs``), each on its own
+rows only; the building blocks are public so a distributed queue can run one chunk per job
+and :meth:`ChunkedPlaceEncoder.assemble` the result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from joblib import Parallel, delayed
+
+from service.encoding.base import Localization, PlaceRecognizer
+from service.encoding.digit_classifier import DigitClassifier
+from service.encoding.encoder import PhaseEncoder
+from service.encoding.footprint import Footprint
+from service.encoding.normalization import Normalizer
+from service.encoding.patterns import select_columns
+from service.encoding.validation import check_descriptors
+from service.errors import InvalidParameterError
+
+#: progress(stage, done, total) — called from the parent process
+ProgressFn = Callable[[str, int, int], None]
+
+_ENCODER_PARAMS = (
+    "n_patterns", "periods", "rho", "gamma", "trainer", "C", "decode", "beam_width", "dtype",
+    "random_state",
+)  # fmt: skip
+
+
+def plan_chunks(n_frames: int, n_chunks: int) -> np.ndarray:
+    """Chunk boundaries ``[0, e_1, …, N]`` of ``n_chunks`` near-equal contiguous chunks."""
+    if n_chunks < 1:
+        raise InvalidParameterError(f"n_chunks must be >= 1, got {n_chunks}")
+    if n_frames < 2 * n_chunks:
+        raise InvalidParameterError(
+            f"{n_frames} frames are too few for {n_chunks} chunks: every chunk needs >= 2 frames",
+            n_frames=n_frames,
+            n_chunks=n_chunks,
+        )
+    sizes = np.full(n_chunks, n_frames // n_chunks, dtype=np.int64)
+    sizes[: n_frames % n_chunks] += 1
+    return np.concatenate([[0], np.cumsum(sizes)])
+
+
+def fit_chunk_encoder(
+    X_chunk: np.ndarray, normalizer: Normalizer, params: dict[str, Any]
+) -> PhaseEncoder:
+    """Train one chunk's encoder on that chunk's raw rows only."""
+    enc = PhaseEncoder(**{k: params[k] for k in _ENCODER_PARAMS if k in params}, normalize=False)
+    return enc._fit_normalised(normalizer.transform(X_chunk))
+
+
+def fit_chunk_classifier(
+    X: np.ndarray, bounds: np.ndarray, normalizer: Normalizer, params: dict[str, Any]
+) -> DigitClassifier:
+    """Pattern-learned linear classifier whose classes are the chunk ids.
+
+    Chunks are contiguous, so the BCSS comes from per-chunk means computed one chunk at a
+    time; only the ``d̃`` selected columns of all rows are ever materialised.
+    """
+    n_chunks = len(bounds) - 1
+    sizes = np.diff(bounds).astype(np.float64)
+    means = np.stack(
+        [normalizer.transform(X[s:e]).mean(axis=0) for s, e in zip(bounds[:-1], bounds[1:])]
+    )
+    grand = sizes @ means / sizes.sum()
+    scores = np.einsum("c,cd->d", sizes, (means - grand) ** 2)
+    rho = params.get("chunk_rho") or params.get("rho", 0.5)
+    pattern = select_columns(scores, rho, params.get("gamma"))
+    cols = pattern.columns
+    X_sel = (np.asarray(X[:, cols], dtype=np.float64) - normalizer.mean[cols]) / normalizer.scale[
+        cols
+    ]
+    return DigitClassifier.fit_selected(
+        X_sel,
+        np.repeat(np.arange(n_chunks), np.diff(bounds)),
+        n_chunks,
+        pattern,
+        trainer=params.get("trainer", "logreg"),
+        C=params.get("C", 4.0),
+        dtype=params.get("dtype", "float32"),
+        random_state=params.get("random_state", 0),
+    )
+
+
+class ChunkedPlaceEncoder(PlaceRecognizer):
+    """Phase encoders per chunk plus a chunk classifier (all :class:`PhaseEncoder` params,
+    and ``n_chunks``, ``chunk_rho`` (``None`` = ``rho``), ``top_chunks``, ``n_jobs``)."""
+
+    kind = "chunked_encoder"
+
+    def __init__(
+        self,
+        n_chunks: int = 4,
+        n_patterns: int = 2,
+        periods: Sequence[int] | None = None,
+        rho: float = 0.5,
+        chunk_rho: float | None = None,
+        gamma: float | None = None,
+        trainer: str = "logreg",
+        C: float = 4.0,
+        decode: str = "joint",
+        beam_width: int = 64,
+        top_chunks: int = 2,
+        dtype: str = "float32",
+        n_jobs: int = 1,
+        random_state: int | None = 0,
+    ) -> None:
+        self.n_chunks = n_chunks
+        self.n_patterns = n_patterns
+        self.periods = periods
+        self.rho = rho
+        self.chunk_rho = chunk_rho
+        self.gamma = gamma
+        self.trainer = trainer
+        self.C = C
+        self.decode = decode
+        self.beam_width = beam_width
+        self.top_chunks = top_chunks
+        self.dtype = dtype
+        self.n_jobs = n_jobs
+        self.random_state = random_state
+
+    def fit(self, X: Any, y: Any = None, progress: ProgressFn | None = None) -> ChunkedPlaceEncoder:
+        del y
+        X = check_descriptors(X, min_rows=2, what="training descriptors")
+        if int(self.top_chunks) < 1:
+            raise InvalidParameterError(f"top_chunks must be >= 1, got {self.top_chunks}")
+        PhaseEncoder(**{k: getattr(self, k) for k in _ENCODER_PARAMS})._validate_params(
+            X.shape[1]
+        )
+        bounds = plan_chunks(X.shape[0], int(self.n_chunks))
+        params = self.get_params()
+        normalizer = Normalizer.fit(X)
+        report = progress or (lambda stage, done, total: None)
+        total = len(bounds)  # the chunk encoders and the chunk classifier
+        report("chunk_classifier", 0, total)
+        classifier = fit_chunk_classifier(X, bounds, normalizer, params)
+        report("chunks", 1, total)
+        jobs = (
+            delayed(fit_chunk_encoder)(X[s:e], normalizer, params)
+            for s, e in zip(bounds[:-1], bounds[1:], strict=True)
+        )
+        encoders: list[PhaseEncoder] = []
+        runner = Parallel(n_jobs=int(self.n_jobs), return_as="generator")
+        for enc in runner(jobs):
+            encoders.append(enc)
+            report("chunks", 1 + len(encoders), total)
+        return self._assemble(normalizer, bounds, classifier, encoders)
+
+    @classmethod
+    def assemble(
+        cls,
+        params: dict[str, Any],
+        normalizer: Normalizer,
+        bounds: np.ndarray,
+        classifier: DigitClassifier,
+        encoders: Sequence[PhaseEncoder],
+    ) -> ChunkedPlaceEncoder:
+        """Build a fitted model from parts trained elsewhere (e.g. one queue job per chunk)."""
+        return cls(**params)._assemble(normalizer, bounds, classifier, encoders)
+
+    def _assemble(
+        self,
+        normalizer: Normalizer,
+        bounds: np.ndarray,
+        classifier: DigitClassifier,
+        encoders: Sequence[PhaseEncoder],
+    ) -> ChunkedPlaceEncoder:
+        bounds = np.asarray(bounds, dtype=np.int64)
+        if len(encoders) != len(bounds) - 1 or classifier.n_classes != len(encoders):
+            raise InvalidParameterError("chunk encoders, bounds and classifier disagree")
+        for enc, size in zip(encoders, np.diff(bounds), strict=True):
+            if enc.n_frames_ != size:
+                raise InvalidParameterError("a chunk encoder was trained on another chunk size")
+        self.normalizer_ = normalizer
+        self.chunk_bounds_ = bounds
+        self.chunk_classifier_ = classifier
+        self.chunk_encoders_ = list(encoders)
+        self._set_fitted(int(bounds[-1]), int(normalizer.mean.shape[0]))
+        return self
+
+    # -- querying -----------------------------------------------------------------------
+    def localize(self, X: Any) -> Localization:
+        Q = self._check_query(X)
+        Qn = self.normalizer_.transform(Q)
+        n_q = Qn.shape[0]
+        chunk_lp = self.chunk_classifier_.log_probs(Qn)
+        m = min(int(self.top_chunks), len(self.chunk_encoders_))
+        top = np.argsort(-chunk_lp, axis=1, kind="stable")[:, :m]
+        best_score = np.full(n_q, -np.inf)
+        best_index = np.zeros(n_q, dtype=np.int64)
+        best_chunk = np.zeros(n_q, dtype=np.int64)
+        for rank in range(m):
+            for c in np.unique(top[:, rank]):
+                rows = np.flatnonzero(top[:, rank] == c)
+                local, score = self.chunk_encoders_[c]._decode_normalised(Qn[rows])
+                score = score + chunk_lp[rows, c]
+                better = score > best_score[rows]
+                upd = rows[better]
+                best_score[upd] = score[better]
+                best_index[upd] = local[better] + self.chunk_bounds_[c]
+                best_chunk[upd] = c
+        return Localization(best_index, np.exp(best_score), best_chunk, best_score)
+
+    # -- storage ------------------------------------------------------------------------
+    def footprint(self) -> Footprint:
+        self._check_fitted()
+        fp = Footprint()
+        for enc in self.chunk_encoders_:
+            fp.merge(enc.footprint())
+        clf = self.chunk_classifier_
+        fp.add("chunk_classifier", clf.paper_bytes(), clf.linear.nbytes)
+        fp.add("chunk_classifier_mask", self.n_features_in_ / 8.0, clf.mask_bytes(self.n_features_in_))
+        fp.add("normalization", 0.0, self.normalizer_.nbytes)
+        return fp
+
+    def _to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        self._check_fitted()
+        arrays = self.chunk_classifier_.to_arrays("chunk_clf", self.n_features_in_)
+        arrays.update(self.normalizer_.to_arrays("norm"))
+        chunks = []
+        for c, enc in enumerate(self.chunk_encoders_):
+            enc_arrays, enc_meta = enc._to_arrays(prefix=f"chunk.{c}.")
+            arrays.update(enc_arrays)
+            chunks.append(enc_meta)
+        meta = {
+            "n_frames": self.n_frames_,
+            "n_features": self.n_features_in_,
+            "chunk_bounds": self.chunk_bounds_.tolist(),
+            "chunks": chunks,
+        }
+        return arrays, meta
+
+    @classmethod
+    def _from_arrays(
+        cls, params: dict[str, Any], arrays: dict[str, np.ndarray], meta: dict[str, Any]
+    ) -> ChunkedPlaceEncoder:
+        d = int(meta["n_features"])
+        enc_params = {k: params[k] for k in _ENCODER_PARAMS if k in params}
+        encoders = [
+            PhaseEncoder._from_arrays({**enc_params, "normalize": False}, arrays, m, f"chunk.{c}.")
+            for c, m in enumerate(meta["chunks"])
+        ]
+        return cls.assemble(
+            params,
+            Normalizer.from_arrays(arrays, "norm"),
+            np.asarray(meta["chunk_bounds"], dtype=np.int64),
+            DigitClassifier.from_arrays(arrays, "chunk_clf", d),
+            encoders,
+        )

@@ -1,0 +1,198 @@
+"""The phase encoder: k digit classifiers whose digits decode into a frame index."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from service.encoding.base import Localization, PlaceRecognizer
+from service.encoding.decoding import DECODE_MODES, decode
+from service.encoding.digit_classifier import DigitClassifier
+from service.encoding.footprint import Footprint
+from service.encoding.normalization import Normalizer
+from service.encoding.patterns import n_selected
+from service.encoding.phases import auto_periods, index_to_labels, validate_periods
+from service.encoding.quantization import check_dtype
+from service.encoding.trainers import TRAINERS
+from service.encoding.validation import check_descriptors
+from service.errors import InvalidParameterError
+
+
+class PhaseEncoder(PlaceRecognizer):
+    """Sub-linear place encoder (Le & Milford 2018) for one route segment.
+
+    Parameters
+    ----------
+    n_patterns : number of phase encoders k (ignored when ``periods`` is given).
+    periods : explicit periods τ1…τk (τ1 most significant); ``None`` picks balanced periods.
+    rho : fraction of descriptor columns each encoder keeps, ``d' = round(ρ·d)``.
+    gamma : L1 bound of the pattern weights; ``None`` uses ``√d'``.
+    trainer : ``logreg`` | ``svm`` | ``ridge`` | ``torch``.
+    C : inverse regularisation strength of the trainers (paper code: 4).
+    decode : ``joint`` (beam search over valid indices) or ``argmax`` (paper).
+    beam_width : beams kept per digit in joint decoding.
+    dtype : storage dtype of the weights: float64, float32, float16 or int8.
+    normalize : z-score columns with the training statistics (stored in the model).
+    random_state : seed for the trainers that use one.
+    """
+
+    kind = "phase_encoder"
+
+    def __init__(
+        self,
+        n_patterns: int = 2,
+        periods: Sequence[int] | None = None,
+        rho: float = 0.5,
+        gamma: float | None = None,
+        trainer: str = "logreg",
+        C: float = 4.0,
+        decode: str = "joint",
+        beam_width: int = 64,
+        dtype: str = "float32",
+        normalize: bool = True,
+        random_state: int | None = 0,
+    ) -> None:
+        self.n_patterns = n_patterns
+        self.periods = periods
+        self.rho = rho
+        self.gamma = gamma
+        self.trainer = trainer
+        self.C = C
+        self.decode = decode
+        self.beam_width = beam_width
+        self.dtype = dtype
+        self.normalize = normalize
+        self.random_state = random_state
+
+    # -- fitting ------------------------------------------------------------------------
+    def _validate_params(self, n_features: int) -> None:
+        if self.trainer not in TRAINERS:
+            raise InvalidParameterError(
+                f"unknown trainer {self.trainer!r}; choose one of {TRAINERS}"
+            )
+        if self.decode not in DECODE_MODES:
+            raise InvalidParameterError(
+                f"unknown decode mode {self.decode!r}; choose one of {DECODE_MODES}"
+            )
+        check_dtype(self.dtype)
+        n_selected(n_features, self.rho)  # raises on rho outside (0, 1]
+        if self.gamma is not None and not self.gamma >= 1:
+            raise InvalidParameterError(f"gamma must be >= 1, got {self.gamma}")
+        if int(self.beam_width) < 1:
+            raise InvalidParameterError(f"beam_width must be >= 1, got {self.beam_width}")
+        if not self.C > 0:
+            raise InvalidParameterError(f"C must be > 0, got {self.C}")
+
+    def fit(self, X: Any, y: Any = None) -> PhaseEncoder:
+        """Learn the encoders from descriptors whose rows are frames in route order."""
+        del y  # the labels are the row order
+        X = check_descriptors(X, min_rows=2, what="training descriptors")
+        self._validate_params(X.shape[1])
+        self.normalizer_ = Normalizer.fit(X) if self.normalize else None
+        Xn = self.normalizer_.transform(X) if self.normalizer_ is not None else X
+        return self._fit_normalised(Xn)
+
+    def _fit_normalised(self, Xn: np.ndarray) -> PhaseEncoder:
+        n, d = Xn.shape
+        self._validate_params(d)
+        if self.periods is not None:
+            self.periods_ = validate_periods(self.periods, n)
+        else:
+            self.periods_ = auto_periods(n, int(self.n_patterns))
+        labels = index_to_labels(np.arange(n), self.periods_)
+        self.digits_ = [
+            DigitClassifier.fit(
+                Xn,
+                labels[:, j],
+                tau,
+                rho=self.rho,
+                gamma=self.gamma,
+                trainer=self.trainer,
+                C=self.C,
+                dtype=self.dtype,
+                random_state=self.random_state,
+            )
+            for j, tau in enumerate(self.periods_)
+        ]
+        if not self.normalize:
+            self.normalizer_ = None
+        self._set_fitted(n, d)
+        return self
+
+    @property
+    def pattern_weights_(self) -> list[np.ndarray]:
+        """Sparse column weights of each encoder (available after ``fit``, not after load)."""
+        self._check_fitted()
+        return [dc.pattern.weights for dc in self.digits_ if dc.pattern is not None]
+
+    @property
+    def selected_columns_(self) -> list[np.ndarray]:
+        self._check_fitted()
+        return [dc.columns for dc in self.digits_]
+
+    # -- querying -----------------------------------------------------------------------
+    def _transform(self, Q: np.ndarray) -> np.ndarray:
+        return self.normalizer_.transform(Q) if self.normalizer_ is not None else Q
+
+    def _decode_normalised(self, Qn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and joint log-probabilities for already-normalised queries."""
+        logps = [dc.log_probs(Qn) for dc in self.digits_]
+        return decode(logps, self.periods_, self.n_frames_, self.decode, int(self.beam_width))
+
+    def localize(self, X: Any) -> Localization:
+        Q = self._check_query(X)
+        index, log_score = self._decode_normalised(self._transform(Q))
+        return Localization(
+            index=index,
+            confidence=np.exp(log_score),
+            chunk=np.zeros_like(index),
+            log_score=log_score,
+        )
+
+    # -- storage ------------------------------------------------------------------------
+    def footprint(self) -> Footprint:
+        self._check_fitted()
+        fp = Footprint()
+        for dc in self.digits_:
+            fp.add("encoders", dc.paper_bytes(), dc.linear.nbytes)
+            fp.add("masks", self.n_features_in_ / 8.0, dc.mask_bytes(self.n_features_in_))
+        if self.normalizer_ is not None:
+            fp.add("normalization", 0.0, self.normalizer_.nbytes)
+        return fp
+
+    def _to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        self._check_fitted()
+        arrays: dict[str, np.ndarray] = {}
+        for j, dc in enumerate(self.digits_):
+            arrays.update(dc.to_arrays(f"{prefix}enc.{j}", self.n_features_in_))
+        if self.normalizer_ is not None:
+            arrays.update(self.normalizer_.to_arrays(f"{prefix}norm"))
+        meta = {
+            "n_frames": self.n_frames_,
+            "n_features": self.n_features_in_,
+            "periods": list(self.periods_),
+        }
+        return arrays, meta
+
+    @classmethod
+    def _from_arrays(
+        cls,
+        params: dict[str, Any],
+        arrays: dict[str, np.ndarray],
+        meta: dict[str, Any],
+        prefix: str = "",
+    ) -> PhaseEncoder:
+        model = cls(**params)
+        d = int(meta["n_features"])
+        model.periods_ = validate_periods(meta["periods"], int(meta["n_frames"]))
+        model.digits_ = [
+            DigitClassifier.from_arrays(arrays, f"{prefix}enc.{j}", d)
+            for j in range(len(model.periods_))
+        ]
+        model.normalizer_ = (
+            Normalizer.from_arrays(arrays, f"{prefix}norm") if model.normalize else None
+        )
+        model._set_fitted(int(meta["n_frames"]), d)
+        return model

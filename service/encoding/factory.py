@@ -1,0 +1,81 @@
+"""Training parameters as one validated object, and the model they describe.
+
+The CLI, the API and the queue all describe a training run with :class:`ModelParams`; an
+unchunked route (``n_chunks = 1``) gets a :class:`PhaseEncoder`, a longer one a
+:class:`ChunkedPlaceEncoder`.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from service.encoding.base import PlaceRecognizer
+from service.encoding.chunked import ChunkedPlaceEncoder
+from service.encoding.encoder import PhaseEncoder
+from service.errors import InvalidParameterError
+
+
+class ModelParams(BaseModel):
+    """Every training parameter, each with a sensible default."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    n_patterns: int = Field(2, ge=1, le=16, description="number of phase encoders k")
+    periods: tuple[int, ...] | None = Field(None, description="explicit periods τ1…τk")
+    rho: float = Field(0.5, gt=0.0, le=1.0, description="fraction of columns per encoder")
+    gamma: float | None = Field(None, ge=1.0, description="L1 bound of pattern weights")
+    trainer: Literal["logreg", "svm", "ridge", "torch"] = "logreg"
+    C: float = Field(4.0, gt=0.0, description="inverse regularisation strength")
+    decode: Literal["joint", "argmax"] = "joint"
+    beam_width: int = Field(64, ge=1, le=100_000)
+    dtype: Literal["float64", "float32", "float16", "int8"] = "float32"
+    n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
+    chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
+    top_chunks: int = Field(2, ge=1)
+    n_jobs: int = Field(1, description="parallel chunk training processes (-1 = all cores)")
+    random_state: int | None = 0
+
+    @field_validator("periods")
+    @classmethod
+    def _periods(cls, v: tuple[int, ...] | None) -> tuple[int, ...] | None:
+        if v is not None and (len(v) == 0 or any(p < 2 for p in v)):
+            raise ValueError("every period must be an integer >= 2")
+        return v
+
+    @classmethod
+    def parse(cls, **kwargs: object) -> ModelParams:
+        """Like the constructor, but raises :class:`InvalidParameterError`."""
+        try:
+            return cls(**kwargs)  # type: ignore[arg-type]
+        except ValidationError as exc:
+            msgs = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()
+            )
+            raise InvalidParameterError(f"invalid training parameters: {msgs}") from exc
+
+
+def build_model(params: ModelParams) -> PlaceRecognizer:
+    """An unfitted estimator for ``params``."""
+    common = dict(
+        n_patterns=params.n_patterns,
+        periods=params.periods,
+        rho=params.rho,
+        gamma=params.gamma,
+        trainer=params.trainer,
+        C=params.C,
+        decode=params.decode,
+        beam_width=params.beam_width,
+        dtype=params.dtype,
+        random_state=params.random_state,
+    )
+    if params.n_chunks == 1:
+        return PhaseEncoder(**common)
+    return ChunkedPlaceEncoder(
+        n_chunks=params.n_chunks,
+        chunk_rho=params.chunk_rho,
+        top_chunks=params.top_chunks,
+        n_jobs=params.n_jobs,
+        **common,
+    )

@@ -1,0 +1,51 @@
+"""Training-set z-scoring stored in the model and applied to every query.
+
+The paper's code z-scored the reference and query sets each with their own statistics; a
+service sees one query at a time, so the statistics of the route are part of the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+_MIN_STD = 1e-8  # constant columns (black frames, borders) are centred, not divided by ~0
+
+
+@dataclass(frozen=True)
+class Normalizer:
+    mean: np.ndarray  # float32, shape (d,)
+    scale: np.ndarray  # float32, shape (d,), never 0
+
+    @classmethod
+    def fit(cls, X: np.ndarray, block_rows: int = 8192) -> Normalizer:
+        """Column mean and standard deviation, in row blocks (no full-size temporary)."""
+        n, d = X.shape
+        total = np.zeros(d)
+        for s in range(0, n, block_rows):
+            total += X[s : s + block_rows].sum(axis=0, dtype=np.float64)
+        mean = total / n
+        sq = np.zeros(d)
+        for s in range(0, n, block_rows):
+            diff = np.asarray(X[s : s + block_rows], dtype=np.float64) - mean
+            sq += np.einsum("ij,ij->j", diff, diff)
+        std = np.sqrt(sq / n)
+        std = np.where(std < _MIN_STD, 1.0, std)
+        return cls(mean=mean.astype(np.float32), scale=std.astype(np.float32))
+
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        return (np.asarray(X, dtype=np.float64) - self.mean.astype(np.float64)) / self.scale.astype(
+            np.float64
+        )
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.mean.nbytes + self.scale.nbytes)
+
+    def to_arrays(self, prefix: str = "norm") -> dict[str, np.ndarray]:
+        return {f"{prefix}.mean": self.mean, f"{prefix}.scale": self.scale}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str = "norm") -> Normalizer:
+        return cls(mean=arrays[f"{prefix}.mean"], scale=arrays[f"{prefix}.scale"])

@@ -1,0 +1,92 @@
+"""Storage dtypes for linear weights: float64, float32, float16, and int8 with per-row scale.
+
+A model quantises its weights once, at the end of ``fit``, and from then on predicts with the
+dequantised values; saving and loading move the stored form unchanged, so a loaded model
+predicts bit-identically to the one that was saved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from service.errors import InvalidParameterError
+
+StorageDtype = Literal["float64", "float32", "float16", "int8"]
+DTYPES: tuple[str, ...] = ("float64", "float32", "float16", "int8")
+
+
+def check_dtype(dtype: str) -> str:
+    if dtype not in DTYPES:
+        raise InvalidParameterError(f"unknown dtype {dtype!r}; choose one of {DTYPES}")
+    return dtype
+
+
+@dataclass(frozen=True)
+class QuantizedLinear:
+    """Weights ``(n_classes, d')`` and biases ``(n_classes,)`` in their stored form."""
+
+    weight: np.ndarray  # stored dtype (int8 for "int8")
+    bias: np.ndarray  # float32 for "int8", else the stored dtype
+    scale: np.ndarray | None = None  # float32 per row, "int8" only
+    _dense: list[np.ndarray] = field(default_factory=list, repr=False, compare=False)
+
+    @classmethod
+    def from_dense(cls, W: np.ndarray, b: np.ndarray, dtype: str) -> QuantizedLinear:
+        check_dtype(dtype)
+        if dtype == "int8":
+            peak = np.abs(W).max(axis=1)
+            scale = np.where(peak > 0, peak / 127.0, 1.0).astype(np.float32)
+            q = np.clip(np.rint(W / scale[:, None].astype(np.float64)), -127, 127).astype(np.int8)
+            return cls(weight=q, bias=b.astype(np.float32), scale=scale)
+        return cls(weight=W.astype(dtype), bias=b.astype(dtype))
+
+    @property
+    def dtype(self) -> str:
+        return "int8" if self.scale is not None else str(self.weight.dtype)
+
+    @property
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """Float64 weights and biases used for scoring (computed once)."""
+        if not self._dense:
+            W = self.weight.astype(np.float64)
+            if self.scale is not None:
+                W = W * self.scale.astype(np.float64)[:, None]
+            self._dense.extend([W, self.bias.astype(np.float64)])
+        return self._dense[0], self._dense[1]
+
+    def scores(self, X: np.ndarray) -> np.ndarray:
+        W, b = self.dense
+        return X @ W.T + b[None, :]
+
+    @property
+    def nbytes(self) -> int:
+        extra = 0 if self.scale is None else self.scale.nbytes
+        return int(self.weight.nbytes + self.bias.nbytes + extra)
+
+    def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        out = {f"{prefix}.weight": self.weight, f"{prefix}.bias": self.bias}
+        if self.scale is not None:
+            out[f"{prefix}.scale"] = self.scale
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> QuantizedLinear:
+        return cls(
+            weight=arrays[f"{prefix}.weight"],
+            bias=arrays[f"{prefix}.bias"],
+            scale=arrays.get(f"{prefix}.scale"),
+        )
+
+
+def pack_columns(columns: np.ndarray, n_features: int) -> np.ndarray:
+    """Selected column indices as a bit mask of ``ceil(d/8)`` bytes."""
+    mask = np.zeros(n_features, dtype=bool)
+    mask[columns] = True
+    return np.packbits(mask)
+
+
+def unpack_columns(packed: np.ndarray, n_features: int) -> np.ndarray:
+    return np.flatnonzero(np.unpackbits(packed, count=n_features)).astype(np.int64)

@@ -1,0 +1,162 @@
+"""Pluggable one-vs-rest linear trainers behind one interface.
+
+Every trainer takes the selected columns of the (normalised) training rows and the digit
+labels and returns the same arrays: ``W`` of shape ``(n_classes, d')`` and ``b`` of shape
+``(n_classes,)``; the score of class ``c`` is ``x·W[c] + b[c]``. A class absent from the
+training labels gets ``W[c] = 0`` and ``b[c] = −inf`` so it can never be decoded.
+
+All trainers minimise ``½||w||² + C·Σ loss`` per class (the intercept is regularised only
+where LIBLINEAR does so, in ``logreg`` and ``svm``):
+
+- ``logreg``: L2 logistic regression through LIBLINEAR (the paper's public code: ``-s 0``,
+  ``C = 4``, bias term).
+- ``svm``: L2 squared-hinge linear SVM (LinearSVC), as the paper's text says.
+- ``ridge``: closed-form least squares on one-hot targets, in whichever of the primal
+  ``d'×d'`` or dual ``N×N`` systems is smaller.
+- ``torch``: all classes at once with L-BFGS on the logistic loss; CUDA when available.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+
+from service.errors import InvalidParameterError
+
+TrainerName = Literal["logreg", "svm", "ridge", "torch"]
+TRAINERS: tuple[str, ...] = ("logreg", "svm", "ridge", "torch")
+
+LinearModel = tuple[np.ndarray, np.ndarray]
+
+
+def train_linear(
+    X: np.ndarray,
+    y: np.ndarray,
+    n_classes: int,
+    trainer: str = "logreg",
+    C: float = 4.0,
+    random_state: int | None = 0,
+) -> LinearModel:
+    """Fit a one-vs-rest linear classifier; returns ``(W, b)`` in float64."""
+    if trainer not in _TRAINERS:
+        raise InvalidParameterError(f"unknown trainer {trainer!r}; choose one of {TRAINERS}")
+    if not C > 0:
+        raise InvalidParameterError(f"C must be > 0, got {C}")
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    y = np.asarray(y, dtype=np.int64)
+    present = np.flatnonzero(np.bincount(y, minlength=n_classes) > 0)
+    W = np.zeros((n_classes, X.shape[1]), dtype=np.float64)
+    b = np.full(n_classes, -np.inf, dtype=np.float64)
+    if present.size == 1:  # a digit that never changes on this route carries no information
+        b[present] = 0.0
+        return W, b
+    Wp, bp = _TRAINERS[trainer](X, np.searchsorted(present, y), present.size, C, random_state)
+    W[present] = Wp
+    b[present] = bp
+    return W, b
+
+
+def _binary_loop(make: Callable[[], object]) -> Callable[..., LinearModel]:
+    def fit(X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None) -> LinearModel:
+        W = np.empty((n, X.shape[1]))
+        b = np.empty(n)
+        for c in range(n):
+            est = make()
+            est.set_params(C=C, random_state=seed)  # type: ignore[attr-defined]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # convergence chatter; results stay usable
+                est.fit(X, (y == c).astype(np.int64))  # type: ignore[attr-defined]
+            W[c] = est.coef_.ravel()  # type: ignore[attr-defined]
+            b[c] = float(np.ravel(est.intercept_)[0])  # type: ignore[attr-defined]
+        return W, b
+
+    return fit
+
+
+def _make_logreg() -> object:
+    from sklearn.linear_model import LogisticRegression
+
+    # LIBLINEAR -s 0 defaults, as in the paper's code: eps = 0.01.
+    return LogisticRegression(solver="liblinear", intercept_scaling=1.0, max_iter=200, tol=0.01)
+
+
+def _make_svm() -> object:
+    from sklearn.svm import LinearSVC
+
+    # LIBLINEAR -s 2 default stopping tolerance (eps = 0.01).
+    return LinearSVC(loss="squared_hinge", dual="auto", max_iter=1000, tol=0.01)
+
+
+def _fit_ridge(X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None) -> LinearModel:
+    """Minimise ``½||W||² + C/2·||XW + b − Y||²`` in closed form."""
+    del seed
+    Y = np.zeros((X.shape[0], n))
+    Y[np.arange(X.shape[0]), y] = 1.0
+    x_mean = X.mean(axis=0)
+    y_mean = Y.mean(axis=0)
+    Xc = X - x_mean
+    Yc = Y - y_mean
+    lam = 1.0 / C
+    n_rows, n_cols = Xc.shape
+    if n_cols <= n_rows:  # primal: (XᵀX + λI) W = XᵀY
+        A = Xc.T @ Xc
+        A[np.diag_indices_from(A)] += lam
+        W = _solve_psd(A, Xc.T @ Yc)
+    else:  # dual: W = Xᵀ (XXᵀ + λI)⁻¹ Y
+        K = Xc @ Xc.T
+        K[np.diag_indices_from(K)] += lam
+        W = Xc.T @ _solve_psd(K, Yc)
+    b = y_mean - x_mean @ W
+    return W.T.copy(), b
+
+
+def _solve_psd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    from scipy import linalg
+
+    return linalg.solve(A, B, assume_a="pos")
+
+
+def _fit_torch(X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None) -> LinearModel:
+    """One-vs-rest logistic loss for all classes at once, full-batch L-BFGS."""
+    try:
+        import torch
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise InvalidParameterError(
+            "trainer 'torch' needs PyTorch: pip install 'gridplace[torch]'"
+        ) from exc
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    gen = torch.Generator(device="cpu")
+    gen.manual_seed(0 if seed is None else int(seed))
+    Xt = torch.as_tensor(X, dtype=torch.float32, device=device)
+    Yt = torch.zeros((X.shape[0], n), dtype=torch.float32, device=device)
+    Yt[torch.arange(X.shape[0], device=device), torch.as_tensor(y, device=device)] = 1.0
+    W = (0.01 * torch.randn((X.shape[1], n), generator=gen)).to(device).requires_grad_(True)
+    b = torch.zeros(n, device=device, requires_grad=True)
+    reg = 1.0 / (2.0 * C * X.shape[0])  # the logreg objective divided by C·N
+    opt = torch.optim.LBFGS(
+        [W, b], lr=1.0, max_iter=300, tolerance_grad=1e-6, line_search_fn="strong_wolfe"
+    )
+    loss_fn = torch.nn.BCEWithLogitsLoss(reduction="sum")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = loss_fn(Xt @ W + b, Yt) / (n * X.shape[0]) + reg * (W * W).sum() / n
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    return (
+        W.detach().T.cpu().numpy().astype(np.float64),
+        b.detach().cpu().numpy().astype(np.float64),
+    )
+
+
+_TRAINERS: dict[str, Callable[..., LinearModel]] = {
+    "logreg": _binary_loop(_make_logreg),
+    "svm": _binary_loop(_make_svm),
+    "ridge": _fit_ridge,
+    "torch": _fit_torch,
+}

@@ -1,0 +1,98 @@
+"""Input checks shared by every estimator, and safe loading of ``.npy`` descriptor files."""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from service.errors import (
+    DimensionMismatchError,
+    EmptyInputError,
+    InvalidInputError,
+    NonFiniteInputError,
+    UnsafeFileError,
+)
+
+
+def check_descriptors(
+    X: object,
+    n_features: int | None = None,
+    min_rows: int = 1,
+    what: str = "descriptors",
+) -> np.ndarray:
+    """Return ``X`` as a finite 2-D float64 array, or raise a precise error.
+
+    A single 1-D descriptor is accepted where ``n_features`` is known and matches.
+    """
+    try:
+        arr = np.asarray(X)
+    except (ValueError, TypeError) as exc:
+        raise InvalidInputError(f"{what} are not a rectangular numeric array: {exc}") from exc
+    if arr.dtype == object or not (
+        np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.bool_)
+    ) or np.issubdtype(arr.dtype, np.complexfloating):
+        raise InvalidInputError(f"{what} must be real numbers, got dtype {arr.dtype}")
+    if arr.ndim == 1 and n_features is not None and arr.shape[0] == n_features:
+        arr = arr[None, :]
+    if arr.ndim != 2:
+        raise DimensionMismatchError(
+            f"{what} must be a 2-D array (rows = frames), got {arr.ndim} dimension(s)",
+            shape=list(arr.shape),
+        )
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise EmptyInputError(f"{what} are empty (shape {arr.shape})")
+    if arr.shape[0] < min_rows:
+        raise InvalidInputError(
+            f"{what} need at least {min_rows} rows, got {arr.shape[0]}", rows=arr.shape[0]
+        )
+    if n_features is not None and arr.shape[1] != n_features:
+        raise DimensionMismatchError(
+            f"{what} have {arr.shape[1]} columns but the model expects {n_features}",
+            expected=n_features,
+            got=arr.shape[1],
+        )
+    arr = np.asarray(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise NonFiniteInputError(
+            f"{what} contain NaN or infinite values (first at row {bad[0]}, column {bad[1]})",
+            row=int(bad[0]),
+            column=int(bad[1]),
+        )
+    return arr
+
+
+def load_npy(source: str | os.PathLike[str] | bytes) -> np.ndarray:
+    """Load a numeric ``.npy`` (or the single/first array of an ``.npz``) without pickle."""
+    if isinstance(source, bytes):
+        fh: io.BytesIO | Path = io.BytesIO(source)
+    else:
+        fh = Path(source)
+        if not fh.is_file():
+            raise InvalidInputError(f"no such file: {fh}")
+    try:
+        obj = np.load(fh, allow_pickle=False)
+        if isinstance(obj, np.lib.npyio.NpzFile):
+            with obj:
+                if not obj.files:
+                    raise EmptyInputError("the .npz archive holds no array")
+                key = "descriptors" if "descriptors" in obj.files else obj.files[0]
+                arr = obj[key]
+        else:
+            arr = obj
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():
+            raise UnsafeFileError(
+                "the file holds pickled Python objects; only numeric arrays are accepted"
+            ) from exc
+        raise UnsafeFileError(f"not a valid .npy/.npz file: {exc}") from exc
+    except (OSError, EOFError) as exc:
+        raise UnsafeFileError(f"not a valid .npy/.npz file: {exc}") from exc
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "biuf":
+        raise UnsafeFileError(
+            f"the array must be numeric (bool, int or float), got dtype {getattr(arr, 'dtype', '?')}"
+        )
+    return arr
