@@ -1,0 +1,38 @@
+"""Service configuration: every field is also an environment variable ``GRIDPLACE_<NAME>``."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="GRIDPLACE_", env_file=None, extra="ignore")
+
+    host: str = Field("127.0.0.1", description="REST bind address")
+    port: int = Field(8080, ge=0, le=65535, description="REST port")
+    grpc_port: int = Field(50051, ge=0, le=65535, description="gRPC port (0 = disabled)")
+    data_dir: Path = Field(Path("./gridplace-data"), description="registry, artifacts, uploads")
+    redis_url: str | None = Field(
+        None, description="redis://… to train on RQ workers; unset = embedded process pool"
+    )
+    queue_name: str = Field("gridplace", description="RQ queue name")
+    admin_token: SecretStr | None = Field(None, description="bearer token for admin calls")
+    insecure_dev: bool = Field(
+        False, description="allow admin calls without a token (development only)"
+    )
+    max_upload_mb: int = Field(512, ge=1, description="largest accepted upload (MiB)")
+    train_workers: int = Field(2, ge=1, description="embedded training processes")
+    job_timeout_s: int = Field(6 * 3600, ge=1, description="a training job's time limit")
+    reload_interval_s: float = Field(
+        1.0, gt=0, description="how often the server checks the registry for activations"
+    )
+    log_level: str = Field("info", description="uvicorn / logging level")
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    return Settings()
