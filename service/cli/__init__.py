@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from service.cli import bench as bench_commands
+from service.cli import demo_commands
 from service.cli import model_commands
 
 app = typer.Typer(
@@ -14,6 +15,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 model_commands.register(app)
+demo_commands.register(app)
 app.add_typer(bench_commands.app, name="bench")
 
 

@@ -82,7 +82,15 @@ def sparse_weights(scores: np.ndarray, gamma: float, tol: float = 1e-10) -> np.n
             hi = mid
         if hi - lo < tol:
             break
-    return normalised(hi)
+    w = normalised(hi)
+    if not np.isfinite(w).all() or w.sum() > gamma * (1 + 1e-9):
+        # m columns tie for the top score and √m > γ: soft-thresholding cannot separate
+        # them. Spreading unit mass evenly over the first ⌊γ²⌋ of them (by column index)
+        # satisfies both bounds and is optimal up to ||w||₁ rounding (√⌊γ²⌋ ≤ γ).
+        ties = np.flatnonzero(a == a.max())[: max(1, int(np.floor(gamma**2)))]
+        w = np.zeros_like(a)
+        w[ties] = 1.0 / np.sqrt(ties.size)
+    return w
 
 
 @dataclass(frozen=True)
