@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -35,15 +35,15 @@ def train(
     reference: Annotated[Path, typer.Argument(help=".npy descriptors, rows in route order")],
     out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory")],
     patterns: Annotated[int, typer.Option("--patterns", "-k", help="number of encoders k")] = 2,
-    periods: Annotated[Optional[str], typer.Option(help="explicit periods, e.g. 60,60")] = None,
+    periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
     rho: Annotated[float, typer.Option(help="fraction of columns per encoder")] = 0.5,
-    gamma: Annotated[Optional[float], typer.Option(help="L1 bound (default sqrt(d'))")] = None,
+    gamma: Annotated[float | None, typer.Option(help="L1 bound (default sqrt(d'))")] = None,
     trainer: Annotated[str, typer.Option(help="logreg | svm | ridge | torch")] = "logreg",
     c: Annotated[float, typer.Option("--C", help="inverse regularisation")] = 4.0,
     decode: Annotated[str, typer.Option(help="joint | argmax")] = "joint",
     dtype: Annotated[str, typer.Option(help="float64 | float32 | float16 | int8")] = "float32",
     chunks: Annotated[int, typer.Option(help="number of chunks (1 = none)")] = 1,
-    chunk_rho: Annotated[Optional[float], typer.Option(help="rho of the chunk classifier")] = None,
+    chunk_rho: Annotated[float | None, typer.Option(help="rho of the chunk classifier")] = None,
     top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
     n_jobs: Annotated[int, typer.Option(help="parallel chunk trainers (-1 = all cores)")] = 1,
 ) -> None:
@@ -76,8 +76,8 @@ def train(
 def localize(
     model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
     queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="write indices (.npy)")] = None,
-    confidence_out: Annotated[Optional[Path], typer.Option(help="write confidences (.npy)")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="write indices (.npy)")] = None,
+    confidence_out: Annotated[Path | None, typer.Option(help="write confidences (.npy)")] = None,
 ) -> None:
     """Predict the frame index of every query row."""
     model = load_model(model_dir)
@@ -96,7 +96,7 @@ def evaluate(
     model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
     queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
     tolerance: Annotated[int, typer.Option(help="frames of tolerance")] = 0,
-    ground_truth: Annotated[Optional[Path], typer.Option(help="int .npy: query i -> frame")] = None,
+    ground_truth: Annotated[Path | None, typer.Option(help="int .npy: query i -> frame")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
 ) -> None:
     """Precision within a tolerance, query time and storage of a saved model."""

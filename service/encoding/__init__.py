@@ -11,7 +11,7 @@ from service.encoding.base import Localization, PlaceRecognizer, precision_at
 from service.encoding.baselines import ExactNN, RhythmicEncoder
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
-from service.encoding.factory import build_model, ModelParams
+from service.encoding.factory import ModelParams, build_model
 from service.encoding.footprint import Footprint
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
 from service.encoding.validation import check_descriptors, load_npy

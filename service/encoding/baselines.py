@@ -9,7 +9,6 @@ from typing import Any
 import numpy as np
 
 from service.encoding.base import Localization, PlaceRecognizer
-from service.encoding.decoding import log_probabilities
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
 from service.encoding.normalization import Normalizer
@@ -94,8 +93,8 @@ class RhythmicEncoder(PlaceRecognizer):
         cols = np.arange(d)
         self.digits_ = []
         for tau in periods:
-            W, b = train_linear(Xn, np.arange(n) % tau, tau, self.trainer, self.C, self.random_state)
-            self.digits_.append(DigitClassifier(cols, QuantizedLinear.from_dense(W, b, self.dtype)))
+            W, bias = train_linear(Xn, np.arange(n) % tau, tau, self.trainer, self.C, self.random_state)
+            self.digits_.append(DigitClassifier(cols, QuantizedLinear.from_dense(W, bias, self.dtype)))
         self._set_fitted(n, d)
         return self
 
@@ -105,13 +104,15 @@ class RhythmicEncoder(PlaceRecognizer):
         residues = np.stack([lp.argmax(axis=1) for lp in logps], axis=1)
         index = crt(residues, self.periods_)
         rows = np.arange(Qn.shape[0])
-        score = np.sum([lp[rows, residues[:, j]] for j, lp in enumerate(logps)], axis=0)
+        score = np.sum(np.stack([lp[rows, residues[:, j]] for j, lp in enumerate(logps)]), axis=0)
         bad = np.flatnonzero(index >= self.n_frames_)
         if bad.size:
             frames = np.arange(self.n_frames_)
             for s in range(0, bad.size, _BLOCK):
                 blk = bad[s : s + _BLOCK]
-                total = sum(lp[blk][:, frames % p] for lp, p in zip(logps, self.periods_))
+                total = np.zeros((blk.size, self.n_frames_))
+                for lp, p in zip(logps, self.periods_, strict=True):
+                    total += lp[blk][:, frames % p]
                 index[blk] = total.argmax(axis=1)
                 score[blk] = total.max(axis=1)
         return Localization(index, np.exp(score), np.zeros_like(index), np.asarray(score))

@@ -7,7 +7,7 @@ unchunked route (``n_chunks = 1``) gets a :class:`PhaseEncoder`, a longer one a
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -58,7 +58,7 @@ class ModelParams(BaseModel):
 
 def build_model(params: ModelParams) -> PlaceRecognizer:
     """An unfitted estimator for ``params``."""
-    common = dict(
+    common: dict[str, Any] = dict(
         n_patterns=params.n_patterns,
         periods=params.periods,
         rho=params.rho,

@@ -9,10 +9,10 @@ from sklearn.base import clone
 from service.encoding import (
     ChunkedPlaceEncoder,
     ExactNN,
+    ModelParams,
     PhaseEncoder,
     RhythmicEncoder,
     build_model,
-    ModelParams,
 )
 from service.encoding.baselines import coprime_periods, crt
 from service.encoding.synthetic import SyntheticRoute
