@@ -13,6 +13,7 @@ from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.factory import ModelParams, build_model
 from service.encoding.footprint import Footprint
+from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
 from service.encoding.validation import check_descriptors, load_npy
 
@@ -22,12 +23,14 @@ __all__ = [
     "Footprint",
     "Localization",
     "ModelParams",
+    "PQIndex",
     "PhaseEncoder",
     "PlaceRecognizer",
     "RhythmicEncoder",
     "auto_periods",
     "build_model",
     "check_descriptors",
+    "faiss_available",
     "index_to_labels",
     "labels_to_index",
     "load_model",

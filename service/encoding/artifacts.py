@@ -35,9 +35,10 @@ def _model_classes() -> dict[str, type[PlaceRecognizer]]:
     from service.encoding.baselines import ExactNN, RhythmicEncoder
     from service.encoding.chunked import ChunkedPlaceEncoder
     from service.encoding.encoder import PhaseEncoder
+    from service.encoding.pq import PQIndex
 
     classes: list[type[PlaceRecognizer]] = [
-        PhaseEncoder, ChunkedPlaceEncoder, RhythmicEncoder, ExactNN,
+        PhaseEncoder, ChunkedPlaceEncoder, RhythmicEncoder, ExactNN, PQIndex,
     ]  # fmt: skip
     return {c.kind: c for c in classes}
 

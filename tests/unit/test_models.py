@@ -148,3 +148,25 @@ def test_chunked_footprint_adds_the_chunk_classifier(small_route: SyntheticRoute
     comps = model.footprint().components
     assert comps["chunk_classifier"].paper_bytes == 8 * 4 * (round(0.25 * d) + 1)
     assert comps["chunk_classifier_mask"].paper_bytes == d / 8
+
+
+def test_pq_baseline_round_trips(small_route: SyntheticRoute, tmp_path) -> None:
+    pytest.importorskip("faiss", reason="PQ is optional; CI installs gridplace[faiss]")
+    from service.encoding import PQIndex, load_model, save_model
+
+    model = PQIndex(n_subquantizers=8).fit(small_route.reference)
+    assert model.score(small_route.query, tolerance=5) > 0.5
+    fp = model.footprint()
+    assert fp.components["pq_codes"].actual_bytes == 400 * 8  # one byte per sub-quantiser
+    save_model(model, tmp_path / "pq")
+    loaded = load_model(tmp_path / "pq")
+    np.testing.assert_array_equal(loaded.predict(small_route.query), model.predict(small_route.query))
+
+
+def test_pq_rejects_a_non_divisor(small_route: SyntheticRoute) -> None:
+    pytest.importorskip("faiss", reason="PQ is optional; CI installs gridplace[faiss]")
+    from service.encoding import PQIndex
+    from service.errors import InvalidParameterError
+
+    with pytest.raises(InvalidParameterError, match="divide"):
+        PQIndex(n_subquantizers=7).fit(small_route.reference)
