@@ -209,6 +209,21 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
                 best_chunk[upd] = c
         return Localization(best_index, np.exp(best_score), best_chunk, best_score)
 
+    def frame_log_scores(self, X: Any) -> np.ndarray:
+        """Log-probability of every frame, ``(n_q, N)``: chunk log-probability plus the chunk
+        encoder's frame scores, for the ``top_chunks`` chunks of each query (−inf elsewhere)."""
+        Qn = self.normalizer_.transform(self._check_query(X))
+        chunk_lp = self.chunk_classifier_.log_probs(Qn)
+        m = min(int(self.top_chunks), len(self.chunk_encoders_))
+        top = np.argsort(-chunk_lp, axis=1, kind="stable")[:, :m]
+        out = np.full((Qn.shape[0], self.n_frames_), -np.inf)
+        for c in np.unique(top):
+            rows = np.flatnonzero((top == c).any(axis=1))
+            s, e = self.chunk_bounds_[c], self.chunk_bounds_[c + 1]
+            enc = self.chunk_encoders_[c]
+            out[rows, s:e] = enc._frame_log_scores_normalised(Qn[rows]) + chunk_lp[rows, c, None]
+        return out
+
     # -- storage ------------------------------------------------------------------------
     def footprint(self) -> Footprint:
         self._check_fitted()

@@ -141,6 +141,18 @@ class PhaseEncoder(PlaceRecognizer):
         logps = [dc.log_probs(Qn) for dc in self.digits_]
         return decode(logps, self.periods_, self.n_frames_, self.decode, int(self.beam_width))
 
+    def _frame_log_scores_normalised(self, Qn: np.ndarray) -> np.ndarray:
+        """Joint log-probability of every frame of the route, shape ``(n_q, N)``."""
+        labels = index_to_labels(np.arange(self.n_frames_), self.periods_)
+        out = np.zeros((Qn.shape[0], self.n_frames_))
+        for j, dc in enumerate(self.digits_):
+            out += dc.log_probs(Qn)[:, labels[:, j]]
+        return out
+
+    def frame_log_scores(self, X: Any) -> np.ndarray:
+        """Log-probability of every frame for every query, ``(n_q, N)`` (for sequence filtering)."""
+        return self._frame_log_scores_normalised(self._transform(self._check_query(X)))
+
     def localize(self, X: Any) -> Localization:
         Q = self._check_query(X)
         index, log_score = self._decode_normalised(self._transform(Q))
