@@ -23,3 +23,8 @@ def bench_train(
     from service.bench.train_bench import run_train_bench
 
     run_train_bench(n_frames, n_features, patterns, rho, trainers.split(","), out)
+
+
+from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments, issue #6)
+
+app.command("paper")(bench_paper)
