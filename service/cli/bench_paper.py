@@ -64,6 +64,9 @@ def bench_paper(
     synthetic_frames: Annotated[int, typer.Option(help="N of the synthetic route")] = 2000,
     synthetic_features: Annotated[int, typer.Option(help="d of the synthetic route")] = 512,
     seed: Annotated[int, typer.Option()] = 0,
+    torch_threads: Annotated[
+        int, typer.Option(help="CPU threads of the torch trainer (0 = torch's default)")
+    ] = 1,
 ) -> None:
     """Storage scaling, training/query time, precision vs k, chunking at scale, and gridplace
     against exact NN and PQ — JSON, a Markdown report and PNG plots in OUT."""
@@ -73,7 +76,8 @@ def bench_paper(
 
     try:
         overrides = {"experiments": tuple(e.strip() for e in experiments.split(",") if e.strip()),
-                         "trainer": trainer, "dtype": dtype, "seed": seed}  # fmt: skip
+                         "trainer": trainer, "dtype": dtype, "seed": seed,
+                     "torch_threads": torch_threads or None}  # fmt: skip
         cfg = BenchConfig.full(**overrides) if full else BenchConfig.quick(**overrides)
         if dataset is None:
             ds = synthetic_dataset(synthetic_frames, synthetic_features, seed=seed)

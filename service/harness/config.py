@@ -22,6 +22,9 @@ class BenchConfig:
     trainer: str = "ridge"  # trainer of every sweep except the per-trainer timing table
     dtype: str = "float32"  # storage dtype of every model
     seed: int = 0
+    # CPU threads of the torch trainer; None = torch's default. One thread by default: on a
+    # shared machine torch's spinning OpenMP threads can slow a fit down a hundredfold.
+    torch_threads: int | None = 1
     # 1. storage scaling
     storage_n_points: int = 5
     storage_n_min: int = 100
@@ -36,7 +39,7 @@ class BenchConfig:
     timing_n_min: int = 250
     timing_trainers: tuple[str, ...] = ("ridge", "torch", "logreg", "svm")
     timing_yu_trainers: tuple[str, ...] = ("ridge", "logreg")
-    slow_trainers: tuple[str, ...] = ("logreg", "svm", "torch")
+    slow_trainers: tuple[str, ...] = ("logreg", "svm")
     slow_trainer_max_n: int = 1000  # slow trainers only up to this N (minutes per fit at 3.5k)
     timing_k: int = 2
     timing_rho: float = 0.5
@@ -91,6 +94,11 @@ class BenchConfig:
             retrieval_pq_m=(16, 32, 64, 128),
         )
         return replace(base, **overrides)
+
+    def uses_torch(self) -> bool:
+        return self.trainer == "torch" or (
+            "timing" in self.experiments and "torch" in self.timing_trainers
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -38,6 +38,18 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def set_torch_threads(n: int | None) -> int | None:
+    """Bound torch's CPU threads (``None`` keeps its default); returns the count in force,
+    or ``None`` when torch is not installed."""
+    try:
+        import torch
+    except ImportError:
+        return None
+    if n is not None:
+        torch.set_num_threads(max(1, int(n)))
+    return int(torch.get_num_threads())
+
+
 def run_context(argv: list[str] | None = None) -> dict[str, Any]:
     """JSON-ready description of this run."""
     return {

@@ -2,8 +2,8 @@
 
 gridplace with each trainer and the Yu et al. baseline, at fixed (k, ρ), on prefixes of the
 route, all on the same machine in the same process so that the ratios hold. ``logreg`` and
-``svm`` (LIBLINEAR) and ``torch`` (L-BFGS on CPU) are minutes per fit on a few thousand frames,
-so the quick budget stops them at ``slow_trainer_max_n``; the JSON records the sizes each one ran at.
+``svm`` (LIBLINEAR) are minutes per fit on a few thousand frames, so the quick budget stops
+them at ``slow_trainer_max_n``; the JSON records the sizes each one ran at.
 """
 
 from __future__ import annotations

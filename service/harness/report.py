@@ -45,6 +45,11 @@ def header(results: dict[str, Any]) -> str:
         (
             f"- **Machine:** {ctx['machine']['cores']} usable cores ({ctx['machine']['processor']}, "
             f"{ctx['machine']['platform']})"
+            + (
+                f"; torch trainer on {ctx['machine']['torch_threads']} thread(s)"
+                if ctx["machine"].get("torch_threads")
+                else ""
+            )
         ),
         (
             f"- **Date:** {ctx['date']}; gridplace commit `{ctx['git_commit']}`; "

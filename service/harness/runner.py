@@ -12,7 +12,7 @@ from typing import Any
 
 from service.harness import plots
 from service.harness.config import BenchConfig
-from service.harness.context import footer, run_context
+from service.harness.context import footer, run_context, set_torch_threads
 from service.harness.datasets import Dataset
 from service.harness.exp_chunking import run_chunking
 from service.harness.exp_patterns import run_patterns
@@ -67,6 +67,8 @@ def run_paper(
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     ctx = run_context(argv)
+    if cfg.uses_torch():
+        ctx["machine"]["torch_threads"] = set_torch_threads(cfg.torch_threads)
     results: dict[str, Any] = {
         "dataset": ds.describe(), "context": ctx, "config": cfg.to_dict(),
         "experiments": {}, "figures": {}, "experiment_seconds": {},

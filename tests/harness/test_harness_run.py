@@ -12,6 +12,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from service.cli import app
+from service.errors import InvalidParameterError
 from service.harness import BenchConfig, run_paper, synthetic_dataset
 from service.harness.methods import MethodSpec
 
@@ -137,3 +138,13 @@ def test_cli_names_a_bad_dataset(tmp_path: Path) -> None:
                                       "--out", str(tmp_path / "o")])  # fmt: skip
     assert result.exit_code == 2
     assert "does not exist" in " ".join(result.output.split())
+
+
+def test_presets_and_bad_experiment_names() -> None:
+    quick, full = BenchConfig.quick(), BenchConfig.full()
+    assert quick.preset == "quick" and full.preset == "full"
+    assert len(full.storage_rhos) > len(quick.storage_rhos)
+    assert full.chunk_n_frames >= 89_000 and quick.chunk_n_frames >= 89_000
+    assert quick.uses_torch() and not BenchConfig.quick(experiments=("patterns",)).uses_torch()
+    with pytest.raises(InvalidParameterError, match="unknown experiments"):
+        BenchConfig.quick(experiments=("storage", "vibes"))
