@@ -53,7 +53,7 @@ class BenchConfig:
     chunk_n_chunks: int = 10
     chunk_k: int = 2
     chunk_rho: float = 0.5
-    chunk_query_noise: float = 0.6
+    chunk_query_noise: float = 0.3
     chunk_n_queries: int | None = 10_000  # evenly spaced subset of the queries; None = all
     chunk_compare_unchunked: bool = True
     chunk_tolerances: tuple[int, ...] = (0, 1, 2, 5, 10, 25, 50, 100, 250)

@@ -100,9 +100,11 @@ def plot_patterns(res: dict[str, Any], meta: str, footer: str, path: Path) -> Pa
 def plot_chunking(res: dict[str, Any], meta: str, footer: str, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.2, 3.9))
     tols = res["tolerances"]
-    for name, m in res["models"].items():
-        ax.semilogx([max(t, 0.5) for t in tols], [m["precision"][str(t)] for t in tols], "-o",
-                    label=name)  # fmt: skip
+    xs = [max(t, 0.5) for t in tols]
+    for i, (name, m) in enumerate(res["models"].items()):
+        for cond, style in (("noisy", "-o"), ("identical", "--s")):
+            ys = [m[cond]["precision"][str(t)] for t in tols]
+            ax.semilogx(xs, ys, style, color=f"C{i}", label=f"{name}: {cond} queries")
     ax.set_xlabel("frame tolerance (0 plotted at 0.5)")
     ax.set_ylabel("precision")
     ax.set_ylim(0, 1.02)

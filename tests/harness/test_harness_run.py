@@ -95,9 +95,11 @@ def test_chunking_and_retrieval_are_scored(run: tuple[dict, Path]) -> None:
     assert chunking["dataset"]["N"] == 1200 and chunking["n_queries_scored"] == 300
     assert set(chunking["models"]) == {"chunked", "unchunked"}
     ch = chunking["models"]["chunked"]
-    assert 0.0 <= ch["chunk_accuracy"] <= 1.0 and len(ch["chunk_sizes"]) == 3
-    precisions = [ch["precision"][str(t)] for t in chunking["tolerances"]]
-    assert precisions == sorted(precisions)  # wider tolerance never lowers precision
+    assert len(ch["chunk_sizes"]) == 3 and sum(ch["chunk_sizes"]) == 1200
+    for cond in ("identical", "noisy"):
+        assert 0.0 <= ch[cond]["chunk_accuracy"] <= 1.0
+        precisions = [ch[cond]["precision"][str(t)] for t in chunking["tolerances"]]
+        assert precisions == sorted(precisions)  # wider tolerance never lowers precision
     rows = {r["method"] for r in run[0]["experiments"]["retrieval"]["rows"]}
     assert {"gridplace", "exact_nn"} <= rows
     for r in run[0]["experiments"]["retrieval"]["rows"]:
