@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markdown import Markdown
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 console = Console()
@@ -67,16 +69,24 @@ def bench_paper(
     torch_threads: Annotated[
         int, typer.Option(help="CPU threads of the torch trainer (0 = torch's default)")
     ] = 1,
+    markdown: Annotated[
+        Path | None,
+        typer.Option(
+            help="also write the report here, figures linked relative to it "
+            "(e.g. docs/RESULTS.md with --out docs/results)"
+        ),
+    ] = None,
 ) -> None:
     """Storage scaling, training/query time, precision vs k, chunking at scale, and gridplace
     against exact NN and PQ — JSON, a Markdown report and PNG plots in OUT."""
     from service.errors import GridplaceError
     from service.harness import BenchConfig, load_dataset, run_paper, synthetic_dataset
     from service.harness.report import render
+    from service.harness.runner import write_atomic
 
     try:
-        overrides = {"experiments": tuple(e.strip() for e in experiments.split(",") if e.strip()),
-                         "trainer": trainer, "dtype": dtype, "seed": seed,
+        names = tuple(e.strip() for e in experiments.split(",") if e.strip())
+        overrides = {"experiments": names, "trainer": trainer, "dtype": dtype, "seed": seed,
                      "torch_threads": torch_threads or None}  # fmt: skip
         cfg = BenchConfig.full(**overrides) if full else BenchConfig.quick(**overrides)
         if dataset is None:
@@ -94,6 +104,10 @@ def bench_paper(
     except GridplaceError as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(2) from exc
-    console.print(render(results))
+    console.print(Markdown(render(results)))
+    if markdown is not None:
+        prefix = Path(os.path.relpath(out.resolve(), markdown.resolve().parent)).as_posix()
+        write_atomic(markdown, render(results, figure_prefix=f"{prefix}/"))
+        console.print(f"wrote {markdown}")
     console.print(f"wrote {out}/results.json, {out}/report.md and {len(results['figures'])} PNGs "
                   f"in {results['elapsed_seconds'] / 60:.1f} min")  # fmt: skip

@@ -127,12 +127,14 @@ def test_cli_runs_a_subset_on_a_dataset_folder(tmp_path: Path) -> None:
     np.save(data / "query.npy", ref + 0.1 * rng.normal(size=ref.shape).astype(np.float32))
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["bench", "paper", "--dataset", str(data), "--out", str(out),
-                                      "--experiments", "patterns"])  # fmt: skip
+                                      "--experiments", "patterns",
+                                      "--markdown", str(tmp_path / "docs" / "R.md")])  # fmt: skip
     assert result.exit_code == 0, result.output
     results = json.loads((out / "results.json").read_text())
     assert results["dataset"]["synthetic"] is False and results["dataset"]["N"] == 120
     assert list(results["experiments"]) == ["patterns"]
     _assert_png(out / "patterns.png")
+    assert "![patterns](../out/patterns.png)" in (tmp_path / "docs" / "R.md").read_text()
 
 
 def test_cli_names_a_bad_dataset(tmp_path: Path) -> None:
