@@ -1,10 +1,10 @@
 """Experiment 1 (paper Fig. 7 / Table I): storage needed to reach a target precision vs N.
 
-For every route length N (a prefix of the route) and every method, each setting of the
+For every route length N (the central N frames of the route, see ``Dataset.segment``) and every method, each setting of the
 shared (ρ, k) grid is trained once and scored on both conditions:
 
 - identical: the queries are the reference frames themselves, precision at tolerance 0;
-- cross-condition: the dataset's queries whose place lies in the prefix, precision at
+- cross-condition: the dataset's queries whose place lies in the segment, precision at
   ``cross_tolerance`` frames.
 
 For each target the smallest storage (paper formula, ``paper_bytes``) of a setting that
@@ -55,7 +55,7 @@ def run_storage(ds: Dataset, cfg: BenchConfig, progress: Progress) -> dict[str, 
     sizes = geometric_sizes(cfg.storage_n_min, ds.n_frames, cfg.storage_n_points)
     points: list[dict[str, Any]] = []
     for n in sizes:
-        X, Q, truth = ds.prefix(n)
+        X, Q, truth = ds.segment(n)
         for spec in storage_grid(cfg, n):
             progress(f"storage N={n} {spec.short()}")
             try:
@@ -74,7 +74,12 @@ def run_storage(ds: Dataset, cfg: BenchConfig, progress: Progress) -> dict[str, 
                 "identical": ident["precision"], "cross": cross["precision"],
                 "n_cross_queries": cross["n_queries"],
             })  # fmt: skip
-    return {"sizes": sizes, "points": points, "targets": summarize(points, cfg)}
+    return {
+        "sizes": sizes,
+        "sub_routes": "central N frames of the route",
+        "points": points,
+        "targets": summarize(points, cfg),
+    }
 
 
 def summarize(points: list[dict[str, Any]], cfg: BenchConfig) -> list[dict[str, Any]]:

@@ -1,6 +1,6 @@
 """Experiment 2 (paper Table II): training and query time vs N, per trainer, one run.
 
-gridplace with each trainer and the Yu et al. baseline, at fixed (k, ρ), on prefixes of the
+gridplace with each trainer and the Yu et al. baseline, at fixed (k, ρ), on central segments of the
 route, all on the same machine in the same process so that the ratios hold. ``logreg`` and
 ``svm`` (LIBLINEAR) are minutes per fit on a few thousand frames, so the quick budget stops
 them at ``slow_trainer_max_n``; the JSON records the sizes each one ran at.
@@ -45,7 +45,7 @@ def run_timing(ds: Dataset, cfg: BenchConfig, progress: Callable[[str], None]) -
     sizes = geometric_sizes(cfg.timing_n_min, ds.n_frames, cfg.timing_n_points)
     rows: list[dict[str, Any]] = []
     for n in sizes:
-        X = ds.reference[:n]
+        X = ds.segment(n)[0]
         for spec in timing_runs(cfg):
             if spec.trainer in cfg.slow_trainers and n > cfg.slow_trainer_max_n:
                 continue

@@ -65,10 +65,32 @@ def header(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def best_precision_table(res: dict[str, Any]) -> str:
+    """Best precision over the whole grid per method and N: the ceiling each target meets."""
+    sizes = res["sizes"]
+    conds = dict.fromkeys((t["condition"], t["tolerance"]) for t in res["targets"])
+    rows = []
+    for cond, tol in conds:
+        for method in dict.fromkeys(p["method"] for p in res["points"]):
+            best = []
+            for n in sizes:
+                vals = [p[cond][str(tol)] for p in res["points"]
+                        if p["method"] == method and p["N"] == n and "error" not in p]  # fmt: skip
+                best.append(_p(max(vals)) if vals else "—")
+            rows.append([f"{cond} ±{tol}", METHOD_LABELS.get(method, method), *best])
+        if cond == "cross":
+            rows.append([f"{cond} ±{tol}", "chance (uniform guess)",
+                         *(_p(min(1.0, (2 * tol + 1) / n)) for n in sizes)])  # fmt: skip
+    head = ["condition", "best precision over the grid", *(f"N={n}" for n in sizes)]
+    return _table(head, rows)
+
+
 def storage_section(res: dict[str, Any], fig: str | None) -> str:
     out = ["## 1. Storage scaling (paper Fig. 7 / Table I)", "",
-           (f"Route prefixes N = {res['sizes']}; for each target, the smallest storage over the "
-           "same (ρ, k) grid per method; fit storage = c·N^a."), ""]  # fmt: skip
+           (f"Sub-routes of N = {res['sizes']} frames ({res.get('sub_routes', 'route prefixes')}); "
+            "for each target, the smallest storage over the same (ρ, k) grid per method; fit "
+            "storage = c·N^a over the sizes where the target was reached (a from two sizes "
+            "is indicative only)."), "", best_precision_table(res), ""]  # fmt: skip
     for tgt in res["targets"]:
         cond = "identical (train = test)" if tgt["condition"] == "identical" else "cross-condition"
         out += [f"**{cond}, precision ≥ {_p(tgt['target'])} within ±{tgt['tolerance']} frames**",
@@ -79,7 +101,7 @@ def storage_section(res: dict[str, Any], fig: str | None) -> str:
             last = m["best"][-1] if m["best"] else None
             rows.append([
                 METHOD_LABELS.get(method, method),
-                f"{fit['a']:.2f} (r²={fit['r2']:.2f})" if fit else "—",
+                f"{fit['a']:.2f} (r²={fit['r2']:.2f}, {fit['n_points']} sizes)" if fit else "—",
                 f"{fit_a['a']:.2f}" if fit_a else "—",
                 ", ".join(str(b["N"]) for b in m["best"]) or "never",
                 f"{_bytes(last['paper_bytes'])} / {_bytes(last['actual_bytes'])} at N={last['N']}"

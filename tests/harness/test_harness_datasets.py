@@ -67,10 +67,12 @@ def test_float_descriptors_are_used_as_stored_and_ground_truth_is_applied(tmp_pa
     assert ds.preprocessing["mode"] == "none"
     assert ds.preprocessing["ground_truth"] == "ground_truth.npy"
     np.testing.assert_array_equal(ds.ground_truth, truth)
-    ref, q, gt = ds.prefix(8)
-    assert ref.shape == (8, 8)
-    np.testing.assert_array_equal(gt, [3, 0, 7, 7])
-    assert q.shape == (4, 8)
+    ref, q, gt = ds.segment(8)  # central frames 6..13: queries 3 and 4 (place 7)
+    np.testing.assert_array_equal(ref, ds.reference[6:14])
+    np.testing.assert_array_equal(gt, [1, 1])
+    np.testing.assert_array_equal(q, ds.query[[3, 4]])
+    with pytest.raises(InvalidParameterError):
+        ds.segment(21)
 
 
 def test_raw_pixel_npy_needs_an_image_shape(tmp_path: Path) -> None:
