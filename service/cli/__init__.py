@@ -7,6 +7,7 @@ import typer
 from service.cli import bench as bench_commands
 from service.cli import demo_commands
 from service.cli import model_commands
+from service.cli import extract_commands, serve_commands
 
 app = typer.Typer(
     name="gridplace",
@@ -16,6 +17,8 @@ app = typer.Typer(
 )
 model_commands.register(app)
 demo_commands.register(app)
+serve_commands.register(app)
+extract_commands.register(app)
 app.add_typer(bench_commands.app, name="bench")
 
 

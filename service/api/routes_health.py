@@ -1,0 +1,28 @@
+"""Liveness, readiness and Prometheus metrics."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", summary="The process is alive")
+def healthz() -> dict[str, str]:
+    return {"status": "ok"}
+
+
+@router.get("/readyz", summary="Every map with an active version is loaded")
+def readyz(request: Request) -> JSONResponse:
+    status: dict[str, Any] = request.app.state.context.store.status()
+    return JSONResponse(status, status_code=200 if status["ready"] else 503)
+
+
+@router.get("/metrics", summary="Prometheus metrics", response_class=Response)
+def metrics(request: Request) -> Response:
+    registry = request.app.state.context.metrics.registry
+    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,171 @@
+"""``POST /v1/localize`` and ``POST /v1/localize/batch``: descriptors or images → frame index."""
+
+from __future__ import annotations
+
+import base64
+import binascii
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query, Request
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+
+from service.api.schemas import (
+    BatchLocalizeRequest,
+    BatchLocalizeResponse,
+    ErrorOut,
+    LocalizeRequest,
+    LocalizeResponse,
+)
+from service.core.localization import LocalizationService, LocalizeResult, decode_float32
+from service.errors import EmptyInputError, InvalidInputError
+
+router = APIRouter(prefix="/v1", tags=["localize"])
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    s: {"model": ErrorOut} for s in (400, 404, 409, 413, 422, 503)
+}
+
+
+def _b64(text: str, field: str) -> bytes:
+    try:
+        data = base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise InvalidInputError(f"{field} is not valid base64: {exc}", field=field) from exc
+    if not data:
+        raise EmptyInputError(f"{field} is empty")
+    return data
+
+
+def _service(request: Request) -> LocalizationService:
+    return request.app.state.context.service  # type: ignore[no-any-return]
+
+
+async def _form(request: Request) -> tuple[str, list[tuple[str, bytes]]]:
+    """``map`` and the image files of a multipart form."""
+    form = await request.form()
+    name = form.get("map")
+    if not isinstance(name, str) or not name:
+        raise InvalidInputError("multipart localize needs a 'map' form field", field="map")
+    images = []
+    for key, value in form.multi_items():
+        if isinstance(value, UploadFile):
+            images.append((value.filename or key, await value.read()))
+    if not images:
+        raise EmptyInputError("multipart localize needs an image file field ('image')")
+    return name, images
+
+
+async def _json_body(request: Request) -> bytes:
+    body = await request.body()
+    if not body.strip():
+        raise EmptyInputError("the request body is empty; send JSON, multipart or float32 bytes")
+    return body
+
+
+def _schema(model: type[Any]) -> dict[str, Any]:
+    return model.model_json_schema(ref_template="#/components/schemas/{model}")  # type: ignore[no-any-return]
+
+
+def _body_doc(json_model: type[Any], multipart: dict[str, Any], binary: bool) -> dict[str, Any]:
+    content: dict[str, Any] = {
+        "application/json": {"schema": _schema(json_model)},
+        "multipart/form-data": {"schema": multipart},
+    }
+    if binary:
+        content["application/octet-stream"] = {
+            "schema": {"type": "string", "format": "binary",
+                       "description": "n·d little-endian float32; map and d as query or headers"}
+        }  # fmt: skip
+    return {"requestBody": {"required": True, "content": content}}
+
+
+_IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
+    "map": {"type": "string"}, "image": {"type": "string", "format": "binary"}}}  # fmt: skip
+_IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
+    "map": {"type": "string"},
+    "images": {"type": "array", "items": {"type": "string", "format": "binary"}}}}  # fmt: skip
+
+
+@router.post(
+    "/localize",
+    response_model=LocalizeResponse,
+    responses=ERRORS,
+    openapi_extra=_body_doc(LocalizeRequest, _IMAGE_FORM, binary=False),
+    summary="Localize one descriptor or image",
+)
+async def localize(request: Request) -> LocalizeResponse:
+    """JSON ``{"map", "descriptor" | "descriptor_b64" | "image_b64"}`` or a multipart form
+    with a ``map`` field and an ``image`` file."""
+    svc = _service(request)
+    ctype = request.headers.get("content-type", "")
+    if ctype.startswith("multipart/form-data"):
+        name, images = await _form(request)
+        if len(images) != 1:
+            raise InvalidInputError(f"send one image here ({len(images)} sent); use /v1/localize/batch")
+        result = await run_in_threadpool(svc.localize_images, name, images)
+        return LocalizeResponse.of(result)
+    req = LocalizeRequest.model_validate_json(await _json_body(request))
+    result = await run_in_threadpool(_localize_one, svc, req)
+    return LocalizeResponse.of(result)
+
+
+def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:
+    if req.image_b64 is not None:
+        return svc.localize_images(req.map, [("image_b64", _b64(req.image_b64, "image_b64"))])
+    if req.descriptor_b64 is not None:
+        raw = decode_float32(_b64(req.descriptor_b64, "descriptor_b64"), None, "descriptor_b64")
+        return svc.localize(req.map, raw[0])
+    assert req.descriptor is not None
+    if not req.descriptor:
+        raise EmptyInputError("descriptor is an empty list")
+    return svc.localize(req.map, req.descriptor)
+
+
+@router.post(
+    "/localize/batch",
+    response_model=BatchLocalizeResponse,
+    responses=ERRORS,
+    openapi_extra=_body_doc(BatchLocalizeRequest, _IMAGES_FORM, binary=True),
+    summary="Localize many descriptors or images in one call",
+)
+async def localize_batch(
+    request: Request,
+    map_q: Annotated[str | None, Query(alias="map", description="map (binary bodies)")] = None,
+    d_q: Annotated[int | None, Query(alias="d", ge=1, description="descriptor size (binary)")] = None,
+    map_h: Annotated[str | None, Header(alias="X-Gridplace-Map")] = None,
+    d_h: Annotated[int | None, Header(alias="X-Gridplace-Dim", ge=1)] = None,
+) -> BatchLocalizeResponse:
+    """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64"}``, a multipart form
+    (``map`` + ``images`` files), or an ``application/octet-stream`` body of float32."""
+    svc = _service(request)
+    ctype = request.headers.get("content-type", "")
+    if ctype.startswith("application/octet-stream"):
+        name = map_q or map_h
+        if not name:
+            raise InvalidInputError(
+                "binary batches need the map as ?map=NAME or an X-Gridplace-Map header", field="map"
+            )
+        body = await request.body()
+        result = await run_in_threadpool(svc.localize_bytes, name, body, d_q or d_h)
+    elif ctype.startswith("multipart/form-data"):
+        name, images = await _form(request)
+        result = await run_in_threadpool(svc.localize_images, name, images)
+    else:
+        req = BatchLocalizeRequest.model_validate_json(await _json_body(request))
+        result = await run_in_threadpool(_localize_many, svc, req)
+    return BatchLocalizeResponse.of(result)
+
+
+def _localize_many(svc: LocalizationService, req: BatchLocalizeRequest) -> LocalizeResult:
+    if req.images_b64 is not None:
+        blobs = [(f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)]
+        return svc.localize_images(req.map, blobs)
+    if req.descriptors_b64 is not None:
+        return svc.localize_bytes(req.map, _b64(req.descriptors_b64, "descriptors_b64"))
+    assert req.descriptors is not None
+    if not req.descriptors:
+        raise EmptyInputError("descriptors is an empty list")
+    if len({len(row) for row in req.descriptors}) != 1:
+        raise InvalidInputError("descriptors rows have different lengths")
+    return svc.localize(req.map, req.descriptors)

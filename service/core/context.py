@@ -1,0 +1,67 @@
+"""Everything one server process holds, built once and shared by every transport.
+
+REST (``service.api``) and gRPC (issue #4) both receive the same :class:`ServiceContext`:
+one registry handle, one training backend, one model store, one service layer, one metrics
+registry.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from service.core.localization import LocalizationService
+from service.core.metrics import ServiceMetrics
+from service.core.model_store import ModelStore
+from service.settings import Settings
+
+if TYPE_CHECKING:
+    from service.jobs import TrainingBackend
+    from service.registry import Registry
+
+log = logging.getLogger("gridplace.context")
+
+
+@dataclass
+class ServiceContext:
+    settings: Settings
+    registry: Registry
+    backend: TrainingBackend
+    store: ModelStore
+    metrics: ServiceMetrics
+    service: LocalizationService
+
+    def start(self) -> None:
+        """Start the hot-swap poller; its first pass loads every active version."""
+        self.store.start()
+
+    def close(self) -> None:
+        self.store.stop()
+        try:
+            self.backend.close()
+        except Exception:  # noqa: BLE001 - shutting down; report and go on
+            log.exception("closing the training backend failed")
+
+
+def build_context(
+    settings: Settings,
+    registry: Registry | None = None,
+    backend: TrainingBackend | None = None,
+) -> ServiceContext:
+    """The production wiring (registry under ``data_dir``, backend from settings); tests may
+    pass their own registry or backend."""
+    if registry is None:
+        from service.registry import Registry
+
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        registry = Registry(settings.data_dir)
+    if backend is None:
+        from service.jobs import make_backend
+
+        backend = make_backend(settings, registry)
+    metrics = ServiceMetrics()
+    store = ModelStore(registry, settings.reload_interval_s)
+    service = LocalizationService(settings, registry, backend, store, metrics)
+    metrics.watch_state(store.snapshot, service.queue_depth)
+    return ServiceContext(settings, registry, backend, store, metrics, service)

@@ -1,0 +1,238 @@
+"""THE service layer: every transport (REST now, gRPC later) calls these methods and nothing
+below them, so validation, errors, metrics and hot-swap semantics are the same everywhere."""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
+
+from service.core.metrics import ServiceMetrics
+from service.core.model_store import LoadedModel, ModelStore
+from service.core.uploads import parse_route, store_descriptors
+from service.encoding import ModelParams, check_descriptors
+from service.errors import (
+    ConflictError,
+    DimensionMismatchError,
+    EmptyInputError,
+    InvalidInputError,
+    UnavailableError,
+)
+from service.imaging import decode_image, make_extractor, parse_extractor_config
+from service.settings import Settings
+
+if TYPE_CHECKING:
+    from service.jobs import TrainingBackend
+    from service.registry import JobInfo, MapInfo, Registry, VersionInfo
+
+MAP_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+MAX_BATCH_IMAGES = 4096
+
+
+@dataclass(frozen=True)
+class LocalizeResult:
+    """Answers for a batch of queries against one map version."""
+
+    map: str
+    version: int
+    index: np.ndarray  # int64 (n,)
+    chunk: np.ndarray  # int64 (n,)
+    confidence: np.ndarray  # float64 (n,)
+    latency_ms: float  # service-layer time: decode + extract + encode
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+def check_map_name(name: str) -> str:
+    if not MAP_NAME.match(name):
+        raise InvalidInputError(
+            f"invalid map name {name!r}: 1-64 characters of letters, digits, '_', '-', '.', "
+            "starting with a letter or digit"
+        )
+    return name
+
+
+def decode_float32(data: bytes, n_features: int | None, what: str = "body") -> np.ndarray:
+    """Little-endian float32 bytes → ``(n, d)``; ``d`` from the model when not given."""
+    if not data:
+        raise EmptyInputError(f"the {what} is empty; send little-endian float32 descriptors")
+    if len(data) % 4:
+        raise InvalidInputError(
+            f"the {what} has {len(data)} bytes, not a whole number of float32 values"
+        )
+    flat = np.frombuffer(data, dtype="<f4")
+    if n_features is None:
+        return flat[None, :]
+    if flat.size % n_features:
+        raise DimensionMismatchError(
+            f"the {what} holds {flat.size} float32 values, not a multiple of d={n_features}",
+            expected=n_features, got=int(flat.size),
+        )  # fmt: skip
+    return flat.reshape(-1, n_features)
+
+
+class LocalizationService:
+    def __init__(
+        self,
+        settings: Settings,
+        registry: Registry,
+        backend: TrainingBackend,
+        store: ModelStore,
+        metrics: ServiceMetrics | None = None,
+    ) -> None:
+        self.settings = settings
+        self.registry = registry
+        self.backend = backend
+        self.store = store
+        self.metrics = metrics or ServiceMetrics()
+
+    # -- serving ----------------------------------------------------------------------
+    def served(self, name: str) -> LoadedModel:
+        """The loaded active version of ``name``: 404 unknown map, 409 none active."""
+        loaded = self.store.get(name)
+        if loaded is not None:
+            return loaded
+        info = self.registry.get_map(name)  # NotFoundError for an unknown map
+        if info.active_version is None:
+            raise ConflictError(
+                f"map {name!r} has no active version; activate one first",
+                map=name, versions=list(info.versions),
+            )  # fmt: skip
+        self.store.refresh()
+        loaded = self.store.get(name)
+        if loaded is None:
+            raise UnavailableError(
+                f"map {name!r} version {info.active_version} is not loaded yet; retry shortly",
+                map=name, version=info.active_version,
+            )  # fmt: skip
+        return loaded
+
+    def localize(self, name: str, X: Any, *, input_kind: str = "descriptor") -> LocalizeResult:
+        """Localize descriptors (``(d,)`` or ``(n, d)``) on the active version of ``name``."""
+        start = time.perf_counter()
+        loaded = self.served(name)  # one reference for the whole request: hot-swap safe
+        Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
+        return self._answer(loaded, Q, start, input_kind)
+
+    def localize_bytes(self, name: str, data: bytes, n_features: int | None = None) -> LocalizeResult:
+        """Localize a raw little-endian float32 body of ``n×d`` values."""
+        start = time.perf_counter()
+        loaded = self.served(name)
+        if n_features is not None and n_features != loaded.n_features:
+            raise DimensionMismatchError(
+                f"d={n_features} was declared but map {name!r} version {loaded.version} "
+                f"expects d={loaded.n_features}", expected=loaded.n_features, got=n_features,
+            )  # fmt: skip
+        Q = check_descriptors(
+            decode_float32(data, loaded.n_features), n_features=loaded.n_features,
+            what="descriptors",
+        )  # fmt: skip
+        return self._answer(loaded, Q, start, "binary")
+
+    def localize_images(self, name: str, images: Sequence[tuple[str, bytes]]) -> LocalizeResult:
+        """Localize encoded images with the extractor stored with the active version."""
+        start = time.perf_counter()
+        if not images:
+            raise EmptyInputError("no image was sent")
+        if len(images) > MAX_BATCH_IMAGES:
+            raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
+        loaded = self.served(name)
+        extractor = loaded.extractor()
+        if extractor is None:
+            raise ConflictError(
+                f"map {name!r} version {loaded.version} was trained on uploaded descriptors "
+                "without an image extractor; send descriptors, or train from images",
+                map=name, version=loaded.version,
+            )  # fmt: skip
+        decoded = [decode_image(data, label) for label, data in images]
+        Q = check_descriptors(extractor.extract(decoded), n_features=loaded.n_features,
+                              what="image descriptors")  # fmt: skip
+        return self._answer(loaded, Q, start, "image")
+
+    def _answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
+        loc = loaded.model.localize(Q)
+        seconds = time.perf_counter() - start
+        self.metrics.localize_seconds.labels(map=loaded.map, input=kind).observe(seconds)
+        self.metrics.queries.labels(map=loaded.map, input=kind).inc(len(loc))
+        return LocalizeResult(
+            loaded.map, loaded.version, loc.index.astype(np.int64), loc.chunk.astype(np.int64),
+            loc.confidence.astype(np.float64), seconds * 1000.0,
+        )  # fmt: skip
+
+    # -- training ---------------------------------------------------------------------
+    def submit_route(
+        self,
+        name: str,
+        filename: str,
+        fh: IO[bytes],
+        params: dict[str, Any],
+        extractor: dict[str, Any] | None = None,
+        idempotency_key: str | None = None,
+    ) -> JobInfo:
+        """Validate and store an uploaded route, then queue its training (202 semantics)."""
+        check_map_name(name)
+        if idempotency_key is not None and not 1 <= len(idempotency_key) <= 200:
+            raise InvalidInputError("Idempotency-Key must be 1-200 characters")
+        model_params = ModelParams.parse(**params)
+        self.backend.check_available()  # Redis down → 503 before any heavy work
+        config = parse_extractor_config(extractor).model_dump() if extractor else None
+        limit = self.settings.max_upload_mb * 1024 * 1024
+        X, source_kind = parse_route(filename, fh, limit, lambda: make_extractor(config))
+        if source_kind == "images" and config is None:
+            config = parse_extractor_config(None).model_dump()
+        if config is not None:
+            d = make_extractor(config).n_features
+            if d != X.shape[1]:
+                raise DimensionMismatchError(
+                    f"the extractor {config['kind']} produces d={d} but the uploaded "
+                    f"descriptors have d={X.shape[1]}", expected=d, got=int(X.shape[1]),
+                )  # fmt: skip
+        if model_params.n_chunks > X.shape[0] // 2:
+            raise InvalidInputError(
+                f"n_chunks={model_params.n_chunks} is too many for a {X.shape[0]}-frame route"
+            )
+        route = store_descriptors(self.settings.data_dir, X, source_kind)  # only valid data lands
+        job = self.backend.submit(name, route.path, model_params, config, idempotency_key)
+        self.metrics.jobs_submitted.inc()
+        return job
+
+    def get_job(self, job_id: str) -> JobInfo:
+        job = self.backend.get_job(job_id)
+        if job.state in ("succeeded", "failed") and job.started_at and job.finished_at:
+            secs = (job.finished_at - job.started_at).total_seconds()
+            self.metrics.observe_job(job.id, job.state, secs)
+        return job
+
+    def queue_depth(self) -> int | None:
+        try:
+            return int(self.backend.queue_depth())
+        except Exception:  # noqa: BLE001 - a scrape must not fail because Redis is down
+            return None
+
+    # -- registry passthrough -----------------------------------------------------------
+    def list_maps(self) -> list[MapInfo]:
+        return self.registry.list_maps()
+
+    def get_map(self, name: str) -> MapInfo:
+        return self.registry.get_map(name)
+
+    def list_versions(self, name: str) -> list[VersionInfo]:
+        return self.registry.list_versions(name)
+
+    def get_version(self, name: str, version: int) -> VersionInfo:
+        return self.registry.get_version(name, version)
+
+    def activate(self, name: str, version: int) -> VersionInfo:
+        """Activate (or roll back to) a version; served by this process when this returns."""
+        info = self.registry.activate(name, version)
+        self.store.refresh()
+        return info
+
+    def delete_version(self, name: str, version: int) -> None:
+        self.registry.delete_version(name, version)
+        self.store.refresh()

@@ -1,0 +1,164 @@
+"""The in-memory active model of every map, hot-swapped when the registry changes.
+
+Readers take one reference to an immutable :class:`LoadedModel` and use it for the whole
+request; a refresh builds a new mapping and replaces the reference in one assignment, so an
+activation or rollback never fails or blocks a request in flight. A background thread polls
+``Registry.generation()`` every ``reload_interval_s``; other processes (a second API replica,
+the worker publishing a first version) are picked up the same way.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any
+
+from service.encoding import PlaceRecognizer
+from service.errors import GridplaceError
+from service.imaging import Extractor, make_extractor
+
+if TYPE_CHECKING:
+    from service.registry import Registry, VersionInfo
+
+log = logging.getLogger("gridplace.model_store")
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    map: str
+    version: int
+    model: PlaceRecognizer
+    info: VersionInfo
+    extractor_config: dict[str, Any] | None
+    loaded_at: float = field(default_factory=time.time)
+    _extractor: list[Extractor] = field(default_factory=list, repr=False, compare=False)
+
+    @property
+    def n_features(self) -> int:
+        return int(self.model.n_features_in_)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.model.n_frames_)
+
+    def extractor(self) -> Extractor | None:
+        """The version's image extractor, built on first use (``None`` if it has none)."""
+        if self.extractor_config is None:
+            return None
+        if not self._extractor:
+            self._extractor.append(make_extractor(self.extractor_config))
+        return self._extractor[0]
+
+
+class ModelStore:
+    def __init__(
+        self,
+        registry: Registry,
+        reload_interval_s: float = 1.0,
+        on_swap: Callable[[Mapping[str, LoadedModel]], None] | None = None,
+    ) -> None:
+        self._registry = registry
+        self._interval = reload_interval_s
+        self._on_swap = on_swap
+        self._models: Mapping[str, LoadedModel] = MappingProxyType({})
+        self._expected: frozenset[str] = frozenset()
+        self._errors: dict[str, str] = {}
+        self._generation: int | None = None
+        self._lock = threading.Lock()  # one refresher at a time; readers never take it
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._synced = threading.Event()
+
+    # -- readers ------------------------------------------------------------------
+    def get(self, name: str) -> LoadedModel | None:
+        return self._models.get(name)
+
+    def snapshot(self) -> Mapping[str, LoadedModel]:
+        return self._models
+
+    def ready(self) -> bool:
+        """True once every map with an active version has that version loaded."""
+        models = self._models
+        return self._synced.is_set() and all(
+            m in models for m in self._expected
+        ) and not self._errors
+
+    def status(self) -> dict[str, Any]:
+        models = self._models
+        return {
+            "ready": self.ready(),
+            "generation": self._generation,
+            "loaded": {n: m.version for n, m in sorted(models.items())},
+            "pending": sorted(self._expected - set(models)),
+            "errors": dict(self._errors),
+        }
+
+    # -- refresh --------------------------------------------------------------------
+    def refresh(self, force: bool = False) -> bool:
+        """Load newly active versions; True if the served set changed."""
+        with self._lock:
+            gen = self._registry.generation()
+            if not force and gen == self._generation:
+                return False
+            current = self._models
+            new: dict[str, LoadedModel] = {}
+            expected: set[str] = set()
+            errors: dict[str, str] = {}
+            for info in self._registry.list_maps():
+                if info.active_version is None:
+                    continue
+                expected.add(info.name)
+                have = current.get(info.name)
+                if have is not None and have.version == info.active_version:
+                    new[info.name] = have
+                    continue
+                try:
+                    new[info.name] = self._load(info.name, info.active_version)
+                    log.info("loaded map %s version %s", info.name, info.active_version)
+                except GridplaceError as exc:
+                    errors[info.name] = f"version {info.active_version}: {exc.message}"
+                    log.error("cannot load map %s v%s: %s", info.name, info.active_version, exc)
+                    if have is not None:  # keep serving the previous version
+                        new[info.name] = have
+            changed = {k: v.version for k, v in new.items()} != {
+                k: v.version for k, v in current.items()
+            }
+            self._models = MappingProxyType(new)  # the atomic swap
+            self._expected = frozenset(expected)
+            self._errors = errors
+            self._generation = gen if not errors else None  # retry failed loads next poll
+            self._synced.set()
+        if changed and self._on_swap is not None:
+            self._on_swap(self._models)
+        return changed
+
+    def _load(self, name: str, version: int) -> LoadedModel:
+        info = self._registry.get_version(name, version)
+        model = self._registry.load_model(name, version)
+        return LoadedModel(name, version, model, info, info.extractor)
+
+    # -- background thread ------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="gridplace-model-store", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.refresh()
+            except Exception:  # a registry hiccup must not kill the poller
+                log.exception("model store refresh failed")
+            self._stop.wait(self._interval)

@@ -1,0 +1,69 @@
+"""Image folders → descriptor matrices, in file-name order, in batches."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from service.errors import EmptyInputError, InvalidInputError
+from service.imaging.decode import decode_image
+from service.imaging.extractors import Extractor
+
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm"})
+BATCH = 256
+
+
+def is_image_name(name: str) -> bool:
+    base = name.rsplit("/", 1)[-1]
+    return not base.startswith(".") and Path(base).suffix.lower() in IMAGE_SUFFIXES
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files directly in ``folder``, sorted by file name."""
+    if not folder.is_dir():
+        raise InvalidInputError(f"not a directory: {folder}")
+    files = sorted((p for p in folder.iterdir() if p.is_file() and is_image_name(p.name)),
+                   key=lambda p: p.name)  # fmt: skip
+    if not files:
+        raise EmptyInputError(f"no image files ({', '.join(sorted(IMAGE_SUFFIXES))}) in {folder}")
+    return files
+
+
+def extract_blobs(
+    extractor: Extractor,
+    blobs: Iterable[tuple[str, bytes]],
+    total: int,
+    progress: Callable[[int, int], None] | None = None,
+) -> np.ndarray:
+    """Descriptors of ``(name, bytes)`` images, decoded and extracted ``BATCH`` at a time."""
+    out = np.empty((total, extractor.n_features), dtype=np.float32)
+    done = 0
+    batch: list = []
+
+    def flush() -> None:
+        nonlocal done, batch
+        if batch:
+            out[done : done + len(batch)] = extractor.extract(batch)
+            done += len(batch)
+            batch = []
+            if progress is not None:
+                progress(done, total)
+
+    for name, data in blobs:
+        batch.append(decode_image(data, name))
+        if len(batch) >= BATCH:
+            flush()
+    flush()
+    if done != total:
+        raise InvalidInputError(f"expected {total} images, decoded {done}")
+    return out
+
+
+def extract_paths(
+    extractor: Extractor,
+    paths: Sequence[Path],
+    progress: Callable[[int, int], None] | None = None,
+) -> np.ndarray:
+    return extract_blobs(extractor, ((p.name, p.read_bytes()) for p in paths), len(paths), progress)
