@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from service.jobs import TrainingBackend
     from service.registry import JobInfo, MapInfo, Registry, VersionInfo
 
-MAP_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+MAP_NAME = re.compile(r"^[a-z0-9][a-z0-9_.-]{0,63}$")  # = service.registry.names
 MAX_BATCH_IMAGES = 4096
 
 
@@ -49,10 +49,10 @@ class LocalizeResult:
 
 
 def check_map_name(name: str) -> str:
-    if not MAP_NAME.match(name):
+    if not MAP_NAME.fullmatch(name):
         raise InvalidInputError(
-            f"invalid map name {name!r}: 1-64 characters of letters, digits, '_', '-', '.', "
-            "starting with a letter or digit"
+            f"invalid map name {name!r}: 1-64 characters of lower-case letters, digits, '_', "
+            "'-' and '.', starting with a letter or digit"
         )
     return name
 
