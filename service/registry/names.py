@@ -1,0 +1,28 @@
+"""Validation of map names and version numbers (they become directory names on disk)."""
+
+from __future__ import annotations
+
+import re
+
+from service.errors import InvalidInputError
+
+MAP_NAME_PATTERN = r"^[a-z0-9][a-z0-9_.-]{0,63}$"
+_MAP_NAME = re.compile(MAP_NAME_PATTERN)
+
+
+def check_map_name(name: object) -> str:
+    """``name`` if it is a valid map name, else :class:`InvalidInputError`."""
+    if not isinstance(name, str) or not _MAP_NAME.fullmatch(name):
+        raise InvalidInputError(
+            f"invalid map name {name!r}: 1-64 characters of lower-case letters, digits, "
+            "'_', '-' and '.', starting with a letter or digit",
+            pattern=MAP_NAME_PATTERN,
+        )
+    return name
+
+
+def check_version(version: object) -> int:
+    """``version`` as an int if it is a positive integer, else :class:`InvalidInputError`."""
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise InvalidInputError(f"invalid version {version!r}: versions are integers >= 1")
+    return version

@@ -1,0 +1,335 @@
+"""The versioned model registry: maps, immutable versions, the active version of each map.
+
+Layout under ``data_dir``::
+
+    registry.sqlite3                 maps, versions, jobs, the generation counter (WAL)
+    artifacts/<map>/v<version>/      one artifact per version (manifest.json + tensors)
+
+Publishing reserves a version number (committed at once, never reused), writes the artifact
+with :func:`service.encoding.save_model` (temp dir, fsync, rename) and then records the
+version in ONE transaction. A crash before that transaction leaves at most an artifact
+directory without a row: invisible to every reader, and removed by :meth:`cleanup_orphans`.
+A row therefore always points to a complete artifact, and :meth:`load_model` checks it
+against the sha256 recorded at publication.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sqlite3
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+from service.encoding import PlaceRecognizer, load_model, read_manifest, save_model
+from service.encoding.artifacts import MANIFEST, TENSORS
+from service.errors import ArtifactError, ConflictError, NotFoundError
+from service.registry.db import Database, dumps, from_text, loads, to_text, utcnow
+from service.registry.job_table import JobTable
+from service.registry.models import MapInfo, VersionInfo
+from service.registry.names import check_map_name, check_version
+
+DB_FILE = "registry.sqlite3"
+ORPHAN_GRACE_S = 3600.0  # a publish in flight is never this slow between save and commit
+_VERSION_DIR = re.compile(r"^v([0-9]+)$")
+
+
+class Registry(JobTable):
+    """Maps, versions and jobs of one data directory (safe from many processes)."""
+
+    def __init__(self, data_dir: Path, *, cleanup_grace_s: float | None = ORPHAN_GRACE_S) -> None:
+        self.data_dir = Path(data_dir)
+        self.artifacts_dir = self.data_dir / "artifacts"
+        self.artifacts_dir.mkdir(parents=True, exist_ok=True)
+        self.db = Database(self.data_dir / DB_FILE)
+        if cleanup_grace_s is not None:
+            self.cleanup_orphans(min_age_s=cleanup_grace_s)
+
+    # -- reading --------------------------------------------------------------------------
+    def generation(self) -> int:
+        """A counter bumped by every publish, activation and deletion (cheap to poll)."""
+        with self.db.connect() as conn:
+            row = conn.execute("SELECT value FROM meta WHERE key = 'generation'").fetchone()
+        return int(row[0])
+
+    def list_maps(self) -> list[MapInfo]:
+        with self.db.connect() as conn:
+            maps = conn.execute("SELECT * FROM maps ORDER BY name").fetchall()
+            versions = conn.execute("SELECT map, version FROM versions ORDER BY version").fetchall()
+        by_map: dict[str, list[int]] = {}
+        for row in versions:
+            by_map.setdefault(row["map"], []).append(int(row["version"]))
+        return [self._map_info(row, by_map.get(row["name"], [])) for row in maps]
+
+    def get_map(self, name: str) -> MapInfo:
+        check_map_name(name)
+        with self.db.connect() as conn:
+            row = self._map_row(conn, name)
+            versions = [
+                int(r[0])
+                for r in conn.execute(
+                    "SELECT version FROM versions WHERE map = ? ORDER BY version", (name,)
+                )
+            ]
+        return self._map_info(row, versions)
+
+    def list_versions(self, name: str) -> list[VersionInfo]:
+        check_map_name(name)
+        with self.db.connect() as conn:
+            active = self._map_row(conn, name)["active_version"]
+            rows = conn.execute(
+                "SELECT * FROM versions WHERE map = ? ORDER BY version", (name,)
+            ).fetchall()
+        return [self._version_info(r, active) for r in rows]
+
+    def get_version(self, name: str, version: int) -> VersionInfo:
+        check_map_name(name)
+        check_version(version)
+        with self.db.connect() as conn:
+            active = self._map_row(conn, name)["active_version"]
+            row = self._version_row(conn, name, version)
+        return self._version_info(row, active)
+
+    def active_version(self, name: str) -> VersionInfo | None:
+        check_map_name(name)
+        with self.db.connect() as conn:
+            active = self._map_row(conn, name)["active_version"]
+            if active is None:
+                return None
+            row = self._version_row(conn, name, active)
+        return self._version_info(row, active)
+
+    def version_for_job(self, job_id: str) -> VersionInfo | None:
+        """The version a training job published, if any."""
+        with self.db.connect() as conn:
+            row = conn.execute("SELECT * FROM versions WHERE job_id = ?", (job_id,)).fetchone()
+            if row is None:
+                return None
+            active = self._map_row(conn, row["map"])["active_version"]
+        return self._version_info(row, active)
+
+    def artifact_dir(self, name: str, version: int) -> Path:
+        return self.artifacts_dir / check_map_name(name) / f"v{check_version(version)}"
+
+    def load_model(self, name: str, version: int) -> PlaceRecognizer:
+        """The model of a version, after checking its files against the recorded sha256."""
+        info = self.get_version(name, version)
+        path = self.artifact_dir(name, version)
+        manifest = read_manifest(path)
+        recorded = (manifest.get("files") or {}).get(TENSORS, {}).get("sha256")
+        if recorded != info.sha256:
+            raise ArtifactError(
+                f"map {name!r} version {version}: the artifact's manifest does not match the "
+                "registry (artifact replaced or corrupt)", map=name, version=version,
+            )  # fmt: skip
+        return load_model(path)  # verifies every file's sha256 against the manifest
+
+    # -- writing --------------------------------------------------------------------------
+    def publish(
+        self,
+        name: str,
+        model: PlaceRecognizer,
+        *,
+        params: dict[str, Any],
+        extractor: dict[str, Any] | None,
+        metrics: dict[str, Any],
+        job_id: str | None = None,
+    ) -> VersionInfo:
+        """Store a fitted model as the next version of ``name`` (the map is created on its
+        first version, which becomes active). A job publishes at most one version: a retried
+        job gets back the version it already published."""
+        check_map_name(name)
+        if job_id is not None and (done := self.version_for_job(job_id)) is not None:
+            return done
+        version = self._reserve_version(name)
+        path = self.artifact_dir(name, version)
+        if path.exists():  # left by a registry database that was lost or replaced
+            self._discard(path)
+        extra = {"map": name, "version": version, "job_id": job_id, "metrics": metrics,
+                 "extractor": extractor}  # fmt: skip
+        manifest = save_model(model, path, extra=extra)
+        try:
+            committed = self._commit_version(name, version, path, manifest, params, extractor,
+                                             metrics, job_id)  # fmt: skip
+        except BaseException:
+            self._discard(path)
+            raise
+        if committed is None:  # another process published this job first
+            self._discard(path)
+            existing = self.version_for_job(job_id) if job_id is not None else None
+            if existing is None:
+                raise ConflictError(f"job {job_id} published concurrently; retry")
+            return existing
+        return self.get_version(name, version)
+
+    def activate(self, name: str, version: int) -> VersionInfo:
+        """Make ``version`` the one served for ``name`` (also how a rollback is done)."""
+        check_map_name(name)
+        check_version(version)
+        with self.db.transaction() as conn:
+            self._map_row(conn, name)
+            self._version_row(conn, name, version)
+            conn.execute("UPDATE maps SET active_version = ? WHERE name = ?", (version, name))
+            self.db.bump_generation(conn)
+        return self.get_version(name, version)
+
+    def delete_version(self, name: str, version: int) -> None:
+        """Delete an inactive version and its artifact; the active one is refused (409)."""
+        check_map_name(name)
+        check_version(version)
+        with self.db.transaction() as conn:
+            active = self._map_row(conn, name)["active_version"]
+            self._version_row(conn, name, version)
+            if active == version:
+                raise ConflictError(
+                    f"version {version} is the active version of map {name!r}; "
+                    "activate another version first", map=name, version=version,
+                )  # fmt: skip
+            conn.execute("DELETE FROM versions WHERE map = ? AND version = ?", (name, version))
+            self.db.bump_generation(conn)
+        self._discard(self.artifact_dir(name, version))  # after commit: a crash leaves an orphan
+
+    def cleanup_orphans(self, min_age_s: float = ORPHAN_GRACE_S) -> list[Path]:
+        """Remove artifact directories that no version row points to (crashed publishes,
+        interrupted deletions, temp dirs), once they are ``min_age_s`` old. Returns them."""
+        removed: list[Path] = []
+        now = time.time()
+        for map_dir in sorted(p for p in self.artifacts_dir.iterdir() if p.is_dir()):
+            for entry in sorted(map_dir.iterdir()):
+                try:
+                    age = now - entry.stat().st_mtime
+                except FileNotFoundError:
+                    continue
+                if age < min_age_s:
+                    continue
+                match = _VERSION_DIR.match(entry.name)
+                if match is None:
+                    if entry.name.startswith("."):  # save_model temp dirs, our trash
+                        shutil.rmtree(entry, ignore_errors=True)
+                        removed.append(entry)
+                    continue
+                # decide under the write lock: a publish commits only if its directory is
+                # still there, so it either wins (row exists) or fails cleanly
+                with self.db.transaction() as conn:
+                    row = conn.execute(
+                        "SELECT 1 FROM versions WHERE map = ? AND version = ?",
+                        (map_dir.name, int(match.group(1))),
+                    ).fetchone()
+                    trash = None if row is not None else self._move_to_trash(entry)
+                if trash is not None:
+                    shutil.rmtree(trash, ignore_errors=True)
+                    removed.append(entry)
+        return removed
+
+    # -- internals ------------------------------------------------------------------------
+    def _reserve_version(self, name: str) -> int:
+        with self.db.transaction() as conn:
+            row = conn.execute(
+                "INSERT INTO version_counters (map, last_reserved) VALUES (?, 1) "
+                "ON CONFLICT (map) DO UPDATE SET last_reserved = last_reserved + 1 "
+                "RETURNING last_reserved",
+                (name,),
+            ).fetchone()
+        return int(row[0])
+
+    def _commit_version(
+        self,
+        name: str,
+        version: int,
+        path: Path,
+        manifest: dict[str, Any],
+        params: dict[str, Any],
+        extractor: dict[str, Any] | None,
+        metrics: dict[str, Any],
+        job_id: str | None,
+    ) -> int | None:
+        """The one metadata transaction of a publish; None if ``job_id`` already published."""
+        try:
+            sha = manifest["files"][TENSORS]["sha256"]
+            artifact_bytes = int(manifest["artifact_bytes"])
+            footprint = manifest["footprint"]
+        except (KeyError, TypeError) as exc:
+            raise ArtifactError(f"artifact {path} has an incomplete manifest: {exc}") from exc
+        now = to_text(utcnow())
+        with self.db.transaction() as conn:
+            if not (path / MANIFEST).is_file():
+                raise ArtifactError(f"artifact {path} disappeared before it was recorded")
+            if job_id is not None and conn.execute(
+                "SELECT 1 FROM versions WHERE job_id = ?", (job_id,)
+            ).fetchone():
+                return None
+            conn.execute("INSERT OR IGNORE INTO maps (name, created_at) VALUES (?, ?)", (name, now))
+            conn.execute(
+                "INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
+                "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (name, version, int(manifest["n_frames"]), int(manifest["n_features"]),
+                 manifest["kind"], dumps(params), None if extractor is None else dumps(extractor),
+                 now, sha, dumps(footprint), artifact_bytes, dumps(metrics), job_id),
+            )  # fmt: skip
+            conn.execute(
+                "UPDATE maps SET active_version = ? WHERE name = ? AND active_version IS NULL",
+                (version, name),
+            )
+            self.db.bump_generation(conn)
+        return version
+
+    def _move_to_trash(self, path: Path) -> Path | None:
+        trash = path.with_name(f".trash-{path.name}-{uuid.uuid4().hex[:8]}")
+        try:
+            os.rename(path, trash)
+        except FileNotFoundError:
+            return None
+        return trash
+
+    def _discard(self, path: Path) -> None:
+        trash = self._move_to_trash(path)
+        if trash is not None:
+            shutil.rmtree(trash, ignore_errors=True)
+
+    @staticmethod
+    def _map_row(conn: sqlite3.Connection, name: str) -> sqlite3.Row:
+        row = conn.execute("SELECT * FROM maps WHERE name = ?", (name,)).fetchone()
+        if row is None:
+            raise NotFoundError(f"no map named {name!r}", map=name)
+        return row
+
+    @staticmethod
+    def _version_row(conn: sqlite3.Connection, name: str, version: int) -> sqlite3.Row:
+        row = conn.execute(
+            "SELECT * FROM versions WHERE map = ? AND version = ?", (name, version)
+        ).fetchone()
+        if row is None:
+            raise NotFoundError(f"map {name!r} has no version {version}", map=name, version=version)
+        return row
+
+    @staticmethod
+    def _map_info(row: sqlite3.Row, versions: list[int]) -> MapInfo:
+        return MapInfo(
+            name=row["name"],
+            active_version=row["active_version"],
+            versions=versions,
+            created_at=from_text(row["created_at"]),
+        )
+
+    @staticmethod
+    def _version_info(row: sqlite3.Row, active: int | None) -> VersionInfo:
+        return VersionInfo(
+            map=row["map"],
+            version=row["version"],
+            active=row["version"] == active,
+            n_frames=row["n_frames"],
+            n_features=row["n_features"],
+            kind=row["kind"],
+            params=loads(row["params"]),
+            extractor=loads(row["extractor"]),
+            created_at=from_text(row["created_at"]),
+            sha256=row["sha256"],
+            footprint=loads(row["footprint"]),
+            artifact_bytes=row["artifact_bytes"],
+            metrics=loads(row["metrics"]),
+            job_id=row["job_id"],
+        )
