@@ -49,7 +49,8 @@ class BenchConfig:
     pattern_rho: float = 0.5
     # 4. chunking at scale
     chunk_n_frames: int = 89_000
-    chunk_n_features: int = 256
+    chunk_n_features: int = 512
+    chunk_region_length: int = 300  # slowly varying scenery of the synthetic route (0 = none)
     chunk_n_chunks: int = 10
     chunk_k: int = 2
     chunk_rho: float = 0.5
@@ -88,7 +89,7 @@ class BenchConfig:
             timing_n_min=100,
             slow_trainer_max_n=1_000_000,
             single_query_repeats=50,
-            chunk_n_features=512,
+            chunk_n_features=1024,
             chunk_n_queries=None,
             retrieval_gridplace=((2, 0.5), (2, 1.0), (3, 0.5), (3, 1.0)),
             retrieval_pq_m=(16, 32, 64, 128),

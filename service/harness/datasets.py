@@ -91,25 +91,50 @@ class Dataset:
         )
 
 
+def regional_component(n_frames: int, n_features: int, region_length: int, seed: int) -> np.ndarray:
+    """A slowly varying, unit-variance SYNTHETIC signal: random anchors every ``region_length``
+    frames, linearly interpolated — the scenery of a region changing along a long route."""
+    rng = np.random.default_rng(seed)
+    anchors = rng.standard_normal((n_frames // region_length + 2, n_features))
+    pos = np.arange(n_frames) / region_length
+    i0 = pos.astype(np.int64)
+    w = (pos - i0)[:, None]
+    slow = anchors[i0] * (1.0 - w) + anchors[i0 + 1] * w
+    slow /= slow.std(axis=0, keepdims=True) + 1e-12
+    return slow
+
+
 def synthetic_dataset(
     n_frames: int = 2000,
     n_features: int = 512,
     query_noise: float = 0.6,
     smoothness: float = 3.0,
+    region_length: int = 0,
     seed: int = 0,
 ) -> Dataset:
-    """A SYNTHETIC route (``service.encoding.synthetic.smooth_route``), clearly labelled."""
+    """A SYNTHETIC route (``service.encoding.synthetic.smooth_route``), clearly labelled.
+
+    ``region_length > 0`` adds :func:`regional_component` to reference and queries alike, so
+    that distant parts of a long route differ systematically, as real scenery does (without
+    it a long smooth random route has no structure a chunk classifier could learn).
+    """
     route = smooth_route(
         n_frames, n_features, smoothness=smoothness, query_noise=query_noise, seed=seed
     )
+    ref, qry = route.reference, route.query
+    if region_length > 0:
+        slow = regional_component(n_frames, n_features, region_length, seed + 1)
+        ref = (ref + slow).astype(np.float32)
+        qry = (qry + slow).astype(np.float32)
     params = {"n_frames": n_frames, "n_features": n_features, "query_noise": query_noise,
-              "smoothness": smoothness, "seed": seed}  # fmt: skip
+              "smoothness": smoothness, "region_length": region_length, "seed": seed}  # fmt: skip
+    region = f", regional component every {region_length} frames" if region_length > 0 else ""
     return Dataset(
         name=f"synthetic-{n_frames}x{n_features}",
-        reference=route.reference,
-        query=route.query,
+        reference=ref,
+        query=qry,
         ground_truth=np.arange(n_frames, dtype=np.int64),
-        label=f"{SYNTHETIC_LABEL}: N={n_frames}, d={n_features}, query noise {query_noise}",
+        label=f"{SYNTHETIC_LABEL}: N={n_frames}, d={n_features}, query noise {query_noise}{region}",
         synthetic=True,
         preprocessing={"mode": "none", "generator": "smooth_route", **params},
         source="generated",

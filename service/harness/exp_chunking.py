@@ -1,8 +1,8 @@
 """Experiment 4: chunking at scale — a route of ≥ 89,000 frames split into chunks.
 
 No real route of that length is available here, so the route is SYNTHETIC
-(``smooth_route``: smooth random process along the route, queries = frames plus noise); every
-output of this experiment says so. A chunked gridplace model (chunk classifier + one phase
+(``smooth_route``: smooth random process along the route plus a slowly varying regional
+component, queries = frames plus noise); every output of this experiment says so. A chunked gridplace model (chunk classifier + one phase
 encoder per chunk) is trained on all frames and scored on an evenly spaced subset of the
 queries (and of the reference frames themselves, "identical") at several frame tolerances,
 beside a single unchunked encoder on the same route.
@@ -49,7 +49,8 @@ def _score(
 def run_chunking(cfg: BenchConfig, progress: Callable[[str], None]) -> dict[str, Any]:
     progress(f"chunking: generating a SYNTHETIC route of {cfg.chunk_n_frames} frames")
     ds = synthetic_dataset(cfg.chunk_n_frames, cfg.chunk_n_features,
-                           query_noise=cfg.chunk_query_noise, seed=cfg.seed)  # fmt: skip
+                           query_noise=cfg.chunk_query_noise,
+                           region_length=cfg.chunk_region_length, seed=cfg.seed)  # fmt: skip
     n = ds.n_frames
     n_q = n if cfg.chunk_n_queries is None else min(n, cfg.chunk_n_queries)
     rows = np.unique(np.linspace(0, n - 1, n_q).astype(np.int64))

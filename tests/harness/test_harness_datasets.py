@@ -10,7 +10,7 @@ from PIL import Image
 
 from service.bench.data import shared_data_dir
 from service.errors import InvalidInputError, InvalidParameterError
-from service.harness.datasets import load_dataset, synthetic_dataset
+from service.harness.datasets import Dataset, load_dataset, synthetic_dataset
 
 H, W = 32, 64
 
@@ -126,3 +126,17 @@ def test_the_real_nordland_folder_loads_directly() -> None:
     assert ds.preprocessing["mode"] == "patch" and ds.preprocessing["image_shape"] == [32, 64]
     assert ds.preprocessing["reference_from"] == "reference.npy"
     assert np.isfinite(ds.query[:100]).all()
+
+
+def test_regional_component_makes_distant_parts_of_a_synthetic_route_differ() -> None:
+    plain = synthetic_dataset(3000, 8, seed=4)
+    regional = synthetic_dataset(3000, 8, region_length=300, seed=4)
+    assert "regional component every 300 frames" in regional.label
+    assert regional.preprocessing["region_length"] == 300
+
+    def block_mean_spread(ds: Dataset) -> float:
+        return float(ds.reference.reshape(10, 300, 8).mean(axis=1).std())
+
+    assert block_mean_spread(regional) > 3 * block_mean_spread(plain)
+    np.testing.assert_allclose(regional.query - regional.reference,
+                               plain.query - plain.reference, atol=1e-5)  # fmt: skip
