@@ -25,6 +25,24 @@ def bench_train(
     run_train_bench(n_frames, n_features, patterns, rho, trainers.split(","), out)
 
 
+@app.command("serve")
+def bench_serve(
+    n_frames: Annotated[int, typer.Option(help="route length N of the served map")] = 10_000,
+    single: Annotated[int, typer.Option(help="single-descriptor requests per form")] = 500,
+    batch_queries: Annotated[int, typer.Option(help="queries sent in batches")] = 4096,
+    batch_size: Annotated[int, typer.Option(help="queries per batch request")] = 256,
+    trainer: Annotated[str, typer.Option()] = "ridge",
+    patterns: Annotated[int, typer.Option(help="k")] = 2,
+    chunks: Annotated[int, typer.Option(help="n_chunks")] = 1,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-serve.json"),
+) -> None:
+    """/localize p50/p99 latency and batch throughput of a real server on loopback (10k map)."""
+    from service.bench.serve_bench import run_serve_bench
+
+    params = {"trainer": trainer, "n_patterns": str(patterns), "n_chunks": str(chunks)}
+    run_serve_bench(n_frames, single, batch_queries, batch_size, params, out)
+
+
 from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments, issue #6)
 
 app.command("paper")(bench_paper)
