@@ -68,6 +68,7 @@ class ModelStore:
         self._expected: frozenset[str] = frozenset()
         self._errors: dict[str, str] = {}
         self._generation: int | None = None
+        self._retry_at = 0.0
         self._lock = threading.Lock()  # one refresher at a time; readers never take it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -102,7 +103,8 @@ class ModelStore:
         """Load newly active versions; True if the served set changed."""
         with self._lock:
             gen = self._registry.generation()
-            if not force and gen == self._generation:
+            retry_due = bool(self._errors) and time.monotonic() >= self._retry_at
+            if not force and gen == self._generation and not retry_due:
                 return False
             current = self._models
             new: dict[str, LoadedModel] = {}
@@ -130,7 +132,9 @@ class ModelStore:
             self._models = MappingProxyType(new)  # the atomic swap
             self._expected = frozenset(expected)
             self._errors = errors
-            self._generation = gen if not errors else None  # retry failed loads next poll
+            self._generation = gen
+            # failed loads are retried, but not more often than every few seconds
+            self._retry_at = time.monotonic() + max(5.0 * self._interval, 2.0)
             self._synced.set()
         if changed and self._on_swap is not None:
             self._on_swap(self._models)

@@ -77,3 +77,29 @@ def test_activation_and_rollback_under_load_never_fail(client: TestClient, auth,
             t.join()
     assert not errors
     assert versions == {1, 2}
+
+
+def test_a_corrupt_new_version_keeps_the_old_one_serving(monkeypatch) -> None:
+    from service.errors import ArtifactError
+
+    reg = FakeRegistry()
+    X = smooth_route(60, 16, seed=4).reference  # SYNTHETIC
+    _publish(reg, "a", X)
+    store = ModelStore(reg, reload_interval_s=0.02)
+    store.refresh()
+    assert store.ready() and store.get("a").version == 1
+    _publish(reg, "a", X[::-1].copy(), activate=True)
+    real = reg.load_model
+
+    def broken(name: str, version: int):
+        if version == 2:
+            raise ArtifactError("sha256 mismatch")
+        return real(name, version)
+
+    monkeypatch.setattr(reg, "load_model", broken)
+    store.refresh()
+    assert store.get("a").version == 1  # still serving
+    assert not store.ready() and "sha256 mismatch" in store.status()["errors"]["a"]
+    assert store.refresh() is False  # no retry storm right away
+    monkeypatch.setattr(reg, "load_model", real)
+    assert store.refresh(force=True) and store.get("a").version == 2 and store.ready()
