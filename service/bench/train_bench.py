@@ -62,7 +62,8 @@ def run_train_bench(
         "benchmark": "train",
         "date": datetime.now(UTC).isoformat(),
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
-        "params": {"n_patterns": patterns, "rho": rho, "dtype": "float32", "decode": "joint"},
+        "params": {"n_patterns": patterns, "rho": rho, "dtype": "float32", "decode": "joint",
+                   "n_jobs": -1},  # fmt: skip
         "datasets": {},
     }
     if real is None:
@@ -73,8 +74,10 @@ def run_train_bench(
             rows = {}
             for trainer in trainers:
                 bar.update(task, description=f"{name}: {trainer}")
-                model = PhaseEncoder(n_patterns=patterns, rho=rho, trainer=trainer)
+                model = PhaseEncoder(n_patterns=patterns, rho=rho, trainer=trainer, n_jobs=-1)
                 rows[trainer] = _measure(model, X, queries)
+                report["datasets"][name] = {"N": X.shape[0], "d": X.shape[1], "trainers": rows}
+                out.write_text(json.dumps(report, indent=2))  # partial results survive a stop
                 bar.advance(task)
             label = synth.label if name.startswith("synthetic") else real.label  # type: ignore[union-attr]
             report["datasets"][name] = {"label": label, "N": X.shape[0], "d": X.shape[1],

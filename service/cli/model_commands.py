@@ -45,7 +45,7 @@ def train(
     chunks: Annotated[int, typer.Option(help="number of chunks (1 = none)")] = 1,
     chunk_rho: Annotated[float | None, typer.Option(help="rho of the chunk classifier")] = None,
     top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
-    n_jobs: Annotated[int, typer.Option(help="parallel chunk trainers (-1 = all cores)")] = 1,
+    n_jobs: Annotated[int, typer.Option(help="chunk processes, or one-vs-rest threads without chunks (-1 = all)")] = 1,
 ) -> None:
     """Train a model on a route and save it as a new artifact."""
     params = ModelParams.parse(

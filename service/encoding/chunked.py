@@ -86,6 +86,7 @@ def fit_chunk_classifier(
         C=params.get("C", 4.0),
         dtype=params.get("dtype", "float32"),
         random_state=params.get("random_state", 0),
+        n_jobs=params.get("n_jobs", 1),
     )
 
 

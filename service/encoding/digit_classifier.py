@@ -50,9 +50,12 @@ class DigitClassifier:
         C: float,
         dtype: str,
         random_state: int | None,
+        n_jobs: int = 1,
     ) -> DigitClassifier:
         """Train the linear model on rows already restricted to ``pattern.columns``."""
-        W, b = train_linear(X_sel, labels, n_classes, trainer, C=C, random_state=random_state)
+        W, b = train_linear(
+            X_sel, labels, n_classes, trainer, C=C, random_state=random_state, n_jobs=n_jobs
+        )
         return cls(pattern.columns, QuantizedLinear.from_dense(W, b, dtype), pattern)
 
     @property

@@ -36,6 +36,7 @@ class PhaseEncoder(PlaceRecognizer):
     dtype : storage dtype of the weights: float64, float32, float16 or int8.
     normalize : z-score columns with the training statistics (stored in the model).
     random_state : seed for the trainers that use one.
+    n_jobs : threads solving the one-vs-rest problems of ``logreg``/``svm`` (-1 = all cores).
     """
 
     kind = "phase_encoder"
@@ -53,6 +54,7 @@ class PhaseEncoder(PlaceRecognizer):
         dtype: str = "float32",
         normalize: bool = True,
         random_state: int | None = 0,
+        n_jobs: int = 1,
     ) -> None:
         self.n_patterns = n_patterns
         self.periods = periods
@@ -65,6 +67,7 @@ class PhaseEncoder(PlaceRecognizer):
         self.dtype = dtype
         self.normalize = normalize
         self.random_state = random_state
+        self.n_jobs = n_jobs
 
     # -- fitting ------------------------------------------------------------------------
     def _validate_params(self, n_features: int) -> None:
@@ -113,6 +116,7 @@ class PhaseEncoder(PlaceRecognizer):
                 C=self.C,
                 dtype=self.dtype,
                 random_state=self.random_state,
+                n_jobs=self.n_jobs,
             )
             for j, tau in enumerate(self.periods_)
         ]

@@ -34,7 +34,9 @@ class ModelParams(BaseModel):
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int = Field(2, ge=1)
-    n_jobs: int = Field(1, description="parallel chunk training processes (-1 = all cores)")
+    n_jobs: int = Field(
+        1, ge=-1, description="parallel chunk processes, or one-vs-rest threads without chunks"
+    )
     random_state: int | None = 0
 
     @field_validator("periods")
@@ -71,7 +73,7 @@ def build_model(params: ModelParams) -> PlaceRecognizer:
         random_state=params.random_state,
     )
     if params.n_chunks == 1:
-        return PhaseEncoder(**common)
+        return PhaseEncoder(**common, n_jobs=params.n_jobs)
     return ChunkedPlaceEncoder(
         n_chunks=params.n_chunks,
         chunk_rho=params.chunk_rho,

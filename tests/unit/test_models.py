@@ -72,6 +72,14 @@ def test_chunked_training_in_parallel_processes_matches_serial(tiny_route: Synth
     np.testing.assert_array_equal(serial.predict(tiny_route.query), parallel.predict(tiny_route.query))
 
 
+@pytest.mark.parametrize("trainer", ["logreg", "svm"])
+def test_threaded_one_vs_rest_matches_serial(trainer: str, tiny_route: SyntheticRoute) -> None:
+    serial = PhaseEncoder(trainer=trainer, n_jobs=1).fit(tiny_route.reference)
+    threaded = PhaseEncoder(trainer=trainer, n_jobs=2).fit(tiny_route.reference)
+    for a, b in zip(serial.digits_, threaded.digits_, strict=True):
+        np.testing.assert_array_equal(a.linear.weight, b.linear.weight)
+
+
 def test_baselines_share_the_api(small_route: SyntheticRoute) -> None:
     nn = ExactNN().fit(small_route.reference)
     assert nn.score(small_route.query, tolerance=5) > 0.9
