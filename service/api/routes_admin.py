@@ -10,7 +10,8 @@ from fastapi.concurrency import run_in_threadpool
 from service.api.auth import require_admin
 from service.api.routes_localize import ERRORS
 from service.api.schemas import JobOut, MapDetail, MapOut, VersionOut
-from service.core.localization import LocalizationService, check_map_name
+from service.core.localization import LocalizationService
+from service.registry.names import check_map_name
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[Depends(require_admin)],
                    responses={**ERRORS, 401: ERRORS[400], 403: ERRORS[400]})  # fmt: skip

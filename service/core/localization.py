@@ -3,7 +3,6 @@ below them, so validation, errors, metrics and hot-swap semantics are the same e
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,13 +22,13 @@ from service.errors import (
     UnavailableError,
 )
 from service.imaging import decode_image, make_extractor, parse_extractor_config
+from service.registry.names import check_map_name
 from service.settings import Settings
 
 if TYPE_CHECKING:
     from service.jobs import TrainingBackend
     from service.registry import JobInfo, MapInfo, Registry, VersionInfo
 
-MAP_NAME = re.compile(r"^[a-z0-9][a-z0-9_.-]{0,63}$")  # = service.registry.names
 MAX_BATCH_IMAGES = 4096
 
 
@@ -46,15 +45,6 @@ class LocalizeResult:
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
-
-
-def check_map_name(name: str) -> str:
-    if not MAP_NAME.fullmatch(name):
-        raise InvalidInputError(
-            f"invalid map name {name!r}: 1-64 characters of lower-case letters, digits, '_', "
-            "'-' and '.', starting with a letter or digit"
-        )
-    return name
 
 
 def decode_float32(data: bytes, n_features: int | None, what: str = "body") -> np.ndarray:
