@@ -1,0 +1,209 @@
+"""Training without Redis: a local process pool, one task per chunk.
+
+A coordinator thread per running job (at most ``train_workers`` at once; later jobs stay
+``queued``) drives the pipeline steps through a shared
+:class:`~concurrent.futures.ProcessPoolExecutor` of ``train_workers`` processes started with
+the forkserver method (safe from a threaded server process). A chunked route's chunk
+encoders and its chunk classifier run as separate tasks in parallel; the assembly and
+publication start only when all of them succeeded. Job state is written by the steps into
+the registry, so every API process sees it.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import socket
+import threading
+import time
+from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any, TypeVar
+
+from service.encoding import ModelParams
+from service.errors import UnavailableError
+from service.jobs import pipeline
+from service.jobs.workspace import Workspace
+from service.registry import JobInfo, Registry
+from service.settings import Settings
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+BACKEND = "embedded"
+
+
+def _init_worker(threads: int) -> None:
+    """Bound each training process's BLAS threads so the pool does not oversubscribe cores."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=threads)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class _JobTimeout(Exception):
+    pass
+
+
+class EmbeddedBackend:
+    """The default backend: training processes owned by this (server) process."""
+
+    def __init__(self, settings: Settings, registry: Registry) -> None:
+        self._settings = settings
+        self._registry = registry
+        self._data_dir = registry.data_dir
+        self._workers = int(settings.train_workers)
+        self._owner = f"{socket.gethostname()}:{os.getpid()}"
+        self._lock = threading.Lock()
+        self._pool: ProcessPoolExecutor | None = None
+        self._coordinators = ThreadPoolExecutor(self._workers, thread_name_prefix="gridplace-job")
+        self._closed = False
+        self._reap_orphaned_jobs()
+
+    # -- TrainingBackend ------------------------------------------------------------------
+    def submit(
+        self,
+        map_name: str,
+        route: Path,
+        params: ModelParams,
+        extractor: dict[str, Any] | None,
+        idempotency_key: str | None,
+    ) -> JobInfo:
+        if self._closed:
+            raise UnavailableError("the training backend is shut down")
+        job, created = self._registry.create_job(
+            map_name, route=route, params=params.model_dump(mode="json"), extractor=extractor,
+            backend=BACKEND, idempotency_key=idempotency_key, owner=self._owner,
+        )  # fmt: skip
+        if created:
+            self._coordinators.submit(self._run, job.id)
+        return job
+
+    def get_job(self, job_id: str) -> JobInfo:
+        job = self._registry.get_job(job_id)
+        if not job.done:
+            self._reap_if_orphaned(job_id, self._registry.get_job_spec(job_id).owner)
+            job = self._registry.get_job(job_id)
+        return job
+
+    def queue_depth(self) -> int:
+        return self._registry.count_jobs(["queued"], backend=BACKEND)
+
+    def check_available(self) -> None:
+        if self._closed:
+            raise UnavailableError("the training backend is shut down")
+
+    def close(self) -> None:
+        """Stop accepting jobs, fail the unfinished ones of this process, stop the pool."""
+        if self._closed:
+            return
+        self._closed = True
+        self._coordinators.shutdown(wait=False, cancel_futures=True)
+        for job_id, owner in self._registry.job_owners(BACKEND):
+            if owner == self._owner:
+                self._registry.fail_job(job_id, "the server shut down before the job finished")
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            _terminate(pool)
+
+    # -- coordination ---------------------------------------------------------------------
+    def _run(self, job_id: str) -> None:
+        deadline = time.monotonic() + self._settings.job_timeout_s
+        try:
+            params = ModelParams.parse(**self._registry.get_job_spec(job_id).params)
+            if params.n_chunks == 1:
+                self._call(deadline, pipeline.train_single, self._data_dir, job_id)
+                return
+            self._call(deadline, pipeline.prepare, self._data_dir, job_id)
+            pool = self._get_pool()
+            parts = [pool.submit(pipeline.train_chunk, self._data_dir, job_id, c)
+                     for c in range(params.n_chunks)]  # fmt: skip
+            parts.append(pool.submit(pipeline.train_classifier, self._data_dir, job_id))
+            self._wait_all(parts, deadline)
+            self._call(deadline, pipeline.assemble, self._data_dir, job_id)
+        except BaseException as exc:  # noqa: BLE001 - every failure ends the job, visibly
+            self._fail(job_id, exc)
+
+    def _call(self, deadline: float, fn: Any, *args: Any) -> Any:
+        future = self._get_pool().submit(fn, *args)
+        self._wait_all([future], deadline)
+        return future.result()
+
+    def _wait_all(self, futures: list[Future[Any]], deadline: float) -> None:
+        done, pending = wait(futures, timeout=max(0.0, deadline - time.monotonic()),
+                             return_when=FIRST_EXCEPTION)  # fmt: skip
+        failed = [f for f in done if not f.cancelled() and f.exception() is not None]
+        if failed or pending:
+            for f in pending:
+                f.cancel()  # queued parts never start; running ones find the job finished
+            if failed:
+                raise failed[0].exception()  # type: ignore[misc]
+            raise _JobTimeout(
+                f"training exceeded the job time limit of {self._settings.job_timeout_s} s"
+            )
+
+    def _fail(self, job_id: str, exc: BaseException) -> None:
+        if isinstance(exc, BrokenProcessPool):
+            message = "a training process died unexpectedly (out of memory or killed)"
+            self._reset_pool()
+        elif isinstance(exc, pipeline.JobFinished):
+            return
+        else:
+            message = pipeline.describe(exc)
+        if self._registry.fail_job(job_id, message):
+            log.warning("training job %s failed: %s", job_id, message)
+        Workspace(self._data_dir, job_id).remove()
+
+    def _get_pool(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._closed:
+                raise UnavailableError("the training backend is shut down")
+            if self._pool is None:
+                ctx = mp.get_context("forkserver")
+                ctx.set_forkserver_preload(["service.jobs.pipeline"])
+                threads = max(1, (os.cpu_count() or 1) // self._workers)
+                self._pool = ProcessPoolExecutor(
+                    self._workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,)
+                )
+            return self._pool
+
+    def _reset_pool(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            _terminate(pool)
+
+    # -- jobs whose process is gone ---------------------------------------------------------
+    def _reap_orphaned_jobs(self) -> None:
+        for job_id, owner in self._registry.job_owners(BACKEND):
+            self._reap_if_orphaned(job_id, owner)
+
+    def _reap_if_orphaned(self, job_id: str, owner: str | None) -> None:
+        """Fail a job whose owning process on this host no longer exists."""
+        if owner is None or owner == self._owner:
+            return
+        host, _, pid = owner.rpartition(":")
+        if host == socket.gethostname() and pid.isdigit() and not _pid_alive(int(pid)):
+            if self._registry.fail_job(
+                job_id, f"the server process {pid} that ran this job exited before it finished"
+            ):
+                Workspace(self._data_dir, job_id).remove()
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool now, killing tasks in progress (their jobs are already marked failed)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        proc.terminate()

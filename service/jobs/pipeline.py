@@ -1,0 +1,242 @@
+"""The training pipeline as independent steps, shared by every backend.
+
+Each step is a plain module-level function of ``(data_dir, job_id, ...)``: it reads the job's
+spec from the registry, does its work, writes its result to the job's workspace (or
+publishes the version) and records progress in the registry. The embedded process pool and
+the RQ workers run exactly these functions, so the two backends train identical models.
+
+Unchunked route: :func:`train_single`. Chunked route: :func:`prepare`, then
+:func:`train_chunk` for every chunk and :func:`train_classifier` (all in parallel), then
+:func:`assemble`, which publishes only when every part is there.
+"""
+
+from __future__ import annotations
+
+import time
+from datetime import UTC, datetime
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.encoding import ModelParams, PlaceRecognizer, build_model, precision_at
+from service.encoding.chunked import (
+    ChunkedPlaceEncoder,
+    fit_chunk_classifier,
+    fit_chunk_encoder,
+    plan_chunks,
+)
+from service.encoding.encoder import PhaseEncoder
+from service.encoding.normalization import Normalizer
+from service.encoding.phases import validate_periods
+from service.errors import (
+    ConflictError,
+    DimensionMismatchError,
+    EmptyInputError,
+    GridplaceError,
+    NonFiniteInputError,
+    UnsafeFileError,
+)
+from service.jobs.workspace import Prep, Workspace
+from service.registry import JobSpec, Registry
+
+EVAL_ROWS = 2000  # training-set precision is measured on at most this many frames
+_BLOCK = 8192
+
+
+class JobFinished(ConflictError):
+    """The job already ended (failed elsewhere, timed out): this step must not continue."""
+
+    code = "job_finished"
+
+
+@lru_cache(maxsize=8)
+def registry_for(data_dir: str) -> Registry:
+    """One registry handle per data directory and process (workers run many steps)."""
+    return Registry(Path(data_dir), cleanup_grace_s=None)
+
+
+def describe(exc: BaseException) -> str:
+    """A one-line error for the job record."""
+    if isinstance(exc, GridplaceError):
+        return exc.message
+    text = str(exc) or repr(exc)
+    return f"{type(exc).__name__}: {text}"
+
+
+def open_route(path: Path) -> np.ndarray:
+    """The route's descriptors, memory-mapped read-only (no pickle, no full copy)."""
+    try:
+        X = np.load(path, mmap_mode="r", allow_pickle=False)
+    except FileNotFoundError as exc:
+        raise EmptyInputError(f"the route file {path} is missing") from exc
+    except (ValueError, OSError) as exc:
+        raise UnsafeFileError(f"the route file {path} is not a plain .npy array: {exc}") from exc
+    if X.dtype.kind not in "biuf":
+        raise UnsafeFileError(f"the route file {path} holds dtype {X.dtype}, not numbers")
+    if X.ndim != 2 or X.shape[0] < 2 or X.shape[1] < 1:
+        raise DimensionMismatchError(
+            f"the route must be a (frames, features) array with >= 2 frames, got {X.shape}"
+        )
+    return X
+
+
+def _rows(X: np.ndarray, start: int, stop: int) -> np.ndarray:
+    return np.asarray(X[start:stop], dtype=np.float64)
+
+
+def _check_finite(X: np.ndarray) -> None:
+    for s in range(0, X.shape[0], _BLOCK):
+        block = np.asarray(X[s : s + _BLOCK])
+        if not np.isfinite(block).all():
+            row, col = np.argwhere(~np.isfinite(block))[0]
+            raise NonFiniteInputError(
+                f"the route contains NaN or infinite values (first at row {s + row}, "
+                f"column {col})"
+            )
+
+
+def _load(data_dir: Path, job_id: str) -> tuple[Registry, JobSpec, ModelParams]:
+    registry = registry_for(str(data_dir))
+    spec = registry.get_job_spec(job_id)
+    return registry, spec, ModelParams.parse(**spec.params)
+
+
+def _started(registry: Registry, job_id: str, stage: str, total: int | None = None) -> None:
+    if not registry.mark_running(job_id, stage, total):
+        raise JobFinished(f"job {job_id} already finished; skipping {stage}")
+
+
+def _validate(params: ModelParams, n_features: int, sizes: list[int]) -> None:
+    """Fail before any training for parameters that cannot fit this route."""
+    encoder = build_model(params.model_copy(update={"n_chunks": 1}))
+    assert isinstance(encoder, PhaseEncoder)
+    encoder._validate_params(n_features)
+    if params.periods is not None:
+        for size in sizes:
+            validate_periods(params.periods, size)
+
+
+def train_single(data_dir: Path, job_id: str) -> int:
+    """Train an unchunked route and publish it; returns the version."""
+    registry, spec, params = _load(data_dir, job_id)
+    _started(registry, job_id, "fit", 1)
+    start = time.perf_counter()
+    X = open_route(registry.route_path(spec))
+    _check_finite(X)
+    _validate(params, X.shape[1], [X.shape[0]])
+    model = build_model(params).fit(_rows(X, 0, X.shape[0]))
+    fit_s = time.perf_counter() - start
+    registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s})
+    return _publish(registry, spec, params, model, X, {"fit": fit_s})
+
+
+def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
+    """Check the route against the parameters, fit the route-wide normaliser and plan the
+    chunks; returns ``{"n_frames", "n_features", "n_chunks"}``."""
+    registry, spec, params = _load(data_dir, job_id)
+    _started(registry, job_id, "prepare", params.n_chunks + 1)
+    start = time.perf_counter()
+    X = open_route(registry.route_path(spec))
+    _check_finite(X)
+    bounds = plan_chunks(X.shape[0], params.n_chunks)
+    _validate(params, X.shape[1], np.diff(bounds).tolist())
+    Workspace(data_dir, job_id).save_prep(Prep(Normalizer.fit(X), bounds))
+    registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start})
+    return {"n_frames": int(X.shape[0]), "n_features": int(X.shape[1]),
+            "n_chunks": params.n_chunks}  # fmt: skip
+
+
+def train_chunk(data_dir: Path, job_id: str, chunk: int) -> float:
+    """Train one chunk's encoder on that chunk's rows; returns its seconds."""
+    registry, spec, params = _load(data_dir, job_id)
+    _started(registry, job_id, "chunks")
+    start = time.perf_counter()
+    workspace = Workspace(data_dir, job_id)
+    prep = workspace.load_prep()
+    s, e = int(prep.bounds[chunk]), int(prep.bounds[chunk + 1])
+    X = open_route(registry.route_path(spec))
+    encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump())
+    workspace.save_chunk(chunk, encoder)
+    seconds = time.perf_counter() - start
+    registry.record_progress(job_id, chunks_done_delta=1, timings={f"chunk_{chunk}": seconds})
+    return seconds
+
+
+def train_classifier(data_dir: Path, job_id: str) -> float:
+    """Train the chunk classifier on the whole route; returns its seconds."""
+    registry, spec, params = _load(data_dir, job_id)
+    _started(registry, job_id, "chunks")
+    start = time.perf_counter()
+    workspace = Workspace(data_dir, job_id)
+    prep = workspace.load_prep()
+    X = open_route(registry.route_path(spec))
+    classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump())
+    workspace.save_classifier(classifier, X.shape[1])
+    seconds = time.perf_counter() - start
+    registry.record_progress(job_id, chunks_done_delta=1, timings={"chunk_classifier": seconds})
+    return seconds
+
+
+def assemble(data_dir: Path, job_id: str) -> int:
+    """Assemble the chunk results into one model and publish it; returns the version."""
+    registry, spec, params = _load(data_dir, job_id)
+    _started(registry, job_id, "assemble")
+    start = time.perf_counter()
+    workspace = Workspace(data_dir, job_id)
+    prep = workspace.load_prep()
+    X = open_route(registry.route_path(spec))
+    encoders = [workspace.load_chunk(c) for c in range(prep.n_chunks)]
+    model = ChunkedPlaceEncoder.assemble(
+        build_model(params).get_params(), prep.normalizer, prep.bounds,
+        workspace.load_classifier(X.shape[1]), encoders,
+    )  # fmt: skip
+    timing = {"assemble": time.perf_counter() - start}
+    registry.record_progress(job_id, timings=timing)
+    version = _publish(registry, spec, params, model, X, timing)
+    workspace.remove()
+    return version
+
+
+def evaluate_on_route(model: PlaceRecognizer, X: np.ndarray) -> dict[str, Any]:
+    """Training-set precision at 0 and 5 frames on (at most EVAL_ROWS) evenly spaced frames."""
+    idx = np.unique(np.linspace(0, X.shape[0] - 1, min(X.shape[0], EVAL_ROWS)).astype(np.int64))
+    pred = model.predict(np.asarray(X[idx], dtype=np.float64))
+    return {
+        "train_precision_at_0": precision_at(pred, idx, 0),
+        "train_precision_at_5": precision_at(pred, idx, 5),
+        "eval_frames": int(idx.size),
+    }
+
+
+def _publish(
+    registry: Registry,
+    spec: JobSpec,
+    params: ModelParams,
+    model: PlaceRecognizer,
+    X: np.ndarray,
+    timings: dict[str, float],
+) -> int:
+    _started(registry, spec.job_id, "publish")
+    start = time.perf_counter()
+    metrics: dict[str, Any] = evaluate_on_route(model, X)
+    eval_s = time.perf_counter() - start
+    job = registry.get_job(spec.job_id)
+    stage_seconds = {**job.timings, **timings, "evaluate": eval_s}
+    began = job.started_at or job.created_at
+    metrics.update(
+        train_seconds=(datetime.now(UTC) - began).total_seconds(),
+        stage_seconds=stage_seconds,
+        backend=spec.backend,
+        n_chunks=params.n_chunks,
+    )
+    if registry.get_job(spec.job_id).done:  # timed out or failed meanwhile: publish nothing
+        raise JobFinished(f"job {spec.job_id} finished before its version was published")
+    info = registry.publish(
+        spec.map, model, params=params.model_dump(mode="json"), extractor=spec.extractor,
+        metrics=metrics, job_id=spec.job_id,
+    )  # fmt: skip
+    registry.finish_job(spec.job_id, info.version, {"evaluate": eval_s,
+                                                    "publish": time.perf_counter() - start})
+    return info.version
