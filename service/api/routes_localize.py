@@ -115,11 +115,11 @@ def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeRes
         return svc.localize_images(req.map, [("image_b64", _b64(req.image_b64, "image_b64"))])
     if req.descriptor_b64 is not None:
         raw = decode_float32(_b64(req.descriptor_b64, "descriptor_b64"), None, "descriptor_b64")
-        return svc.localize(req.map, raw[0])
+        return svc.localize(req.map, raw)
     assert req.descriptor is not None
     if not req.descriptor:
         raise EmptyInputError("descriptor is an empty list")
-    return svc.localize(req.map, req.descriptor)
+    return svc.localize(req.map, [req.descriptor])  # one row: a wrong d is named as such
 
 
 @router.post(

@@ -171,7 +171,7 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
         "single_b64": single_b64,
         "batch_binary": batched,
         "in_process": local,
-        "place_precision_at_5_batch": place_p5,
+        "place_precision_at_5_winter_queries": place_p5,
         "transport": "HTTP/1.1 keep-alive on loopback, one client, httpx",
     }
     _print(report)
@@ -200,5 +200,5 @@ def _print(r: dict[str, Any]) -> None:
     t.add_row(f"in-process encoder batch ×{b['batch_size']}", "", "",
               f"{loc['batch_queries_per_s']:.0f} q/s")  # fmt: skip
     console.print(t)
-    console.print(f"place precision@5 of the batch answers: {r['place_precision_at_5_batch']:.3f}; "
+    console.print(f"place precision@5 of the batch answers (winter queries, cross-season): {r["place_precision_at_5_winter_queries"]:.3f}; "
                   f"training (upload → done): {r['training']['upload_to_done_seconds']:.1f} s")  # fmt: skip

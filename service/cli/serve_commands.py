@@ -50,7 +50,7 @@ def serve(
         train_workers=train_workers, job_timeout_s=job_timeout_s,
         reload_interval_s=reload_interval_s, log_level=log_level,
     ).items() if v is not None}  # fmt: skip
-    settings = Settings(**overrides)
+    settings = Settings(**overrides)  # type: ignore[arg-type]  # flags override the environment
     logging.basicConfig(level=settings.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")  # fmt: skip
     if settings.admin_token is None and settings.insecure_dev:

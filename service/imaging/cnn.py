@@ -7,6 +7,7 @@ dict is read from ``config.weights`` (``.safetensors``, or a ``torch.save`` file
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,8 @@ _STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)
 
 def _import_torch() -> tuple[Any, Any]:
     try:
-        import torch
-        import torchvision
+        torch = importlib.import_module("torch")
+        torchvision = importlib.import_module("torchvision")
     except ImportError as exc:
         raise UnavailableError(
             "the 'cnn' extractor needs torch and torchvision, which are not installed here "

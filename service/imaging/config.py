@@ -80,7 +80,7 @@ class CnnConfig(_Base):
 ExtractorConfig = Annotated[PatchNormConfig | HogConfig | CnnConfig, Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[PatchNormConfig | HogConfig | CnnConfig] = TypeAdapter(ExtractorConfig)
 
-DEFAULT_EXTRACTOR: dict[str, Any] = PatchNormConfig().model_dump()
+DEFAULT_EXTRACTOR: dict[str, Any] = PatchNormConfig.model_validate({}).model_dump()
 
 
 def parse_extractor_config(raw: dict[str, Any] | None) -> PatchNormConfig | HogConfig | CnnConfig:

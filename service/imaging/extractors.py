@@ -17,7 +17,8 @@ from service.imaging.config import CnnConfig, HogConfig, PatchNormConfig, parse_
 
 
 class Extractor(Protocol):
-    config: PatchNormConfig | HogConfig | CnnConfig
+    @property
+    def config(self) -> PatchNormConfig | HogConfig | CnnConfig: ...
 
     @property
     def n_features(self) -> int: ...
