@@ -48,7 +48,7 @@ def create_app(
             for companion in reversed(started):
                 try:
                     companion.stop()
-                except Exception:  # noqa: BLE001 - keep shutting the others down
+                except Exception:
                     log.exception("stopping %s failed", companion.name)
             ctx.close()
 

@@ -164,8 +164,11 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
         "data": {"label": label, "N": int(ref.shape[0]), "d": int(ref.shape[1])},
         "params": params,
-        "model": {"kind": version["kind"], "footprint": version["footprint"],
-                  "artifact_bytes": version["artifact_bytes"]},  # fmt: skip
+        "model": {
+            "kind": version["kind"],
+            "footprint": version["footprint"],
+            "artifact_bytes": version["artifact_bytes"],
+        },
         "training": {"upload_to_done_seconds": job["upload_to_done_seconds"], "timings": job["timings"]},
         "single_json": single_json,
         "single_b64": single_b64,
@@ -200,5 +203,6 @@ def _print(r: dict[str, Any]) -> None:
     t.add_row(f"in-process encoder batch ×{b['batch_size']}", "", "",
               f"{loc['batch_queries_per_s']:.0f} q/s")  # fmt: skip
     console.print(t)
-    console.print(f"place precision@5 of the batch answers (winter queries, cross-season): {r["place_precision_at_5_winter_queries"]:.3f}; "
+    p5 = r["place_precision_at_5_winter_queries"]
+    console.print(f"place precision@5 of the batch answers (winter queries, cross-season): {p5:.3f}; "
                   f"training (upload → done): {r['training']['upload_to_done_seconds']:.1f} s")  # fmt: skip

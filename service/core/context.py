@@ -40,7 +40,7 @@ class ServiceContext:
         self.store.stop()
         try:
             self.backend.close()
-        except Exception:  # noqa: BLE001 - shutting down; report and go on
+        except Exception:
             log.exception("closing the training backend failed")
 
 

@@ -22,7 +22,7 @@ from typing import IO
 import numpy as np
 
 from service.encoding import check_descriptors, load_npy
-from service.errors import EmptyInputError, InvalidInputError, PayloadTooLargeError, UnsafeFileError
+from service.errors import EmptyInputError, PayloadTooLargeError, UnsafeFileError
 from service.imaging import Extractor, extract_blobs, is_image_name
 
 MAX_MEMBERS = 1_000_000
@@ -43,7 +43,7 @@ def sniff_kind(filename: str, head: bytes) -> str:
     """``npy``, ``zip`` or ``tar`` from magic bytes (file name as a tie-breaker)."""
     if head.startswith(b"\x93NUMPY"):
         return "npy"
-    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+    if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
         name = filename.lower()
         return "npy" if name.endswith(".npz") else "zip"
     if head[:2] == b"\x1f\x8b" or head[:3] == b"BZh" or head[:6] == b"\xfd7zXZ\x00":
@@ -98,7 +98,7 @@ def _zip_members(fh: IO[bytes], limit: int) -> Iterator[tuple[str, bytes]]:
 
 def _tar_members(fh: IO[bytes], limit: int) -> Iterator[tuple[str, bytes]]:
     try:
-        tf = tarfile.open(fileobj=fh, mode="r:*")
+        tf = tarfile.open(fileobj=fh, mode="r:*")  # noqa: SIM115 - read lazily below; fh owns the data
         members = []
         for count, m in enumerate(tf, 1):
             if count > MAX_MEMBERS:

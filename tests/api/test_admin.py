@@ -78,7 +78,7 @@ def test_idempotency_key_returns_the_same_job(client: TestClient, auth, route, b
 def test_upload_is_stored_by_sha_and_params_reach_the_backend(client, auth, route, backend, settings) -> None:
     r = _upload(client, auth, "m", npy_bytes(route[0]), n_patterns="3", rho="0.4", periods="8,4,4")
     assert r.status_code == 202, r.text
-    name, path, params, extractor = backend.submitted[0]
+    _, path, params, extractor = backend.submitted[0]
     assert path.parent == settings.data_dir / "uploads" and path.stem and len(path.stem) == 64
     assert params.n_patterns == 3 and params.rho == 0.4 and params.periods == (8, 4, 4)
     assert extractor is None

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 
-import numpy as np
 import pytest
 from conftest import expected_index, png_bytes
 from fastapi.testclient import TestClient
@@ -102,11 +101,11 @@ def test_no_active_version_is_409(client: TestClient, trained: str, registry) ->
 
 
 def test_images_need_an_extractor_and_are_decoded(client: TestClient, auth, registry) -> None:
-    from service.imaging import make_extractor
-    from service.imaging.decode import decode_image
-
     import io
     import zipfile
+
+    from service.imaging import make_extractor
+    from service.imaging.decode import decode_image
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
