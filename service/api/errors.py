@@ -58,6 +58,8 @@ async def _pydantic_validation(_: Request, exc: Exception) -> JSONResponse:
 
 async def _http(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
+    if isinstance(exc.__cause__, GridplaceError):  # e.g. 413 raised while FastAPI parsed a form
+        return error_response(exc.__cause__)
     body = {"error": _HTTP_CODES.get(exc.status_code, "http_error"), "message": str(exc.detail)}
     return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
 

@@ -134,3 +134,25 @@ def test_training_unavailable_is_503_while_localize_answers(client, auth, traine
     r = client.post("/v1/localize", json={"map": trained, "descriptor": route[0][0].tolist()})
     assert r.status_code == 200
     assert client.get("/metrics").status_code == 200
+
+
+def test_chunked_body_over_the_limit_is_413(client: TestClient, auth) -> None:
+    def chunks():
+        for _ in range(3):
+            yield b"\x00" * (1024 * 1024)
+
+    boundary = "xyz"
+    head = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; filename=\"r.npy\"\r\n"
+            "Content-Type: application/octet-stream\r\n\r\n").encode()  # fmt: skip
+
+    def body():
+        yield head
+        yield from chunks()
+        yield f"\r\n--{boundary}--\r\n".encode()
+
+    r = client.post("/v1/maps/m/routes", content=body(),
+                    headers={**auth, "Content-Type": f"multipart/form-data; boundary={boundary}"})  # fmt: skip
+    assert r.status_code == 413 and "GRIDPLACE_MAX_UPLOAD_MB" in r.json()["message"]
+    r = client.post("/v1/localize/batch?map=m", content=chunks(),
+                    headers={"Content-Type": "application/octet-stream"})  # fmt: skip
+    assert r.status_code == 413
