@@ -9,6 +9,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from service.api import routes_admin, routes_health, routes_localize
+from service.api.auth import AdminGate
 from service.api.companions import Companion
 from service.api.errors import install_error_handlers
 from service.api.limits import BodySizeLimit
@@ -66,5 +67,6 @@ def create_app(
     app.include_router(routes_admin.router)
     app.include_router(routes_health.router)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 1024 * 1024)
+    app.add_middleware(AdminGate, settings=settings)  # before any admin body is read
     app.add_middleware(HttpMetrics, registry=ctx.metrics.registry)  # outermost: counts 413s too
     return app

@@ -5,8 +5,10 @@ from __future__ import annotations
 import secrets
 
 from fastapi import Request
+from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service.errors import ForbiddenError, UnauthorizedError
+from service.api.errors import error_response
+from service.errors import ForbiddenError, GridplaceError, UnauthorizedError
 from service.settings import Settings
 
 
@@ -30,3 +32,31 @@ def check_admin(settings: Settings, authorization: str | None) -> None:
 def require_admin(request: Request) -> None:
     """FastAPI dependency for the admin router."""
     check_admin(request.app.state.context.settings, request.headers.get("authorization"))
+
+
+class AdminGate:
+    """Refuse unauthenticated admin calls before their body is read.
+
+    FastAPI parses a form (spooling an upload to disk) before it runs dependencies, so the
+    router's ``require_admin`` alone would let anyone make the server swallow a large upload
+    first. This ASGI layer answers 401/403 from the headers alone.
+    """
+
+    PREFIXES = ("/v1/maps", "/v1/jobs")
+
+    def __init__(self, app: ASGIApp, settings: Settings) -> None:
+        self.app = app
+        self.settings = settings
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and str(scope.get("path", "")).startswith(self.PREFIXES):
+            authorization = None
+            for key, value in scope.get("headers", ()):
+                if key == b"authorization":
+                    authorization = value.decode("latin-1")
+            try:
+                check_admin(self.settings, authorization)
+            except GridplaceError as exc:
+                await error_response(exc)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)

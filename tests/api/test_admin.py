@@ -156,3 +156,18 @@ def test_chunked_body_over_the_limit_is_413(client: TestClient, auth) -> None:
     r = client.post("/v1/localize/batch?map=m", content=chunks(),
                     headers={"Content-Type": "application/octet-stream"})  # fmt: skip
     assert r.status_code == 413
+
+
+def test_unauthenticated_upload_is_refused_before_its_body_is_read(client: TestClient) -> None:
+    reads = 0
+
+    def body():
+        nonlocal reads
+        for _ in range(4):
+            reads += 1
+            yield b"\x00" * 1024
+
+    r = client.post("/v1/maps/m/routes", content=body(),
+                    headers={"Content-Type": "multipart/form-data; boundary=x"})  # fmt: skip
+    assert r.status_code == 401
+    assert reads <= 1  # the gate answered from the headers
