@@ -8,6 +8,7 @@ from service.cli import bench as bench_commands
 from service.cli import demo_commands
 from service.cli import model_commands
 from service.cli import extract_commands, serve_commands
+from service.cli import worker_commands
 
 app = typer.Typer(
     name="gridplace",
@@ -19,6 +20,7 @@ model_commands.register(app)
 demo_commands.register(app)
 serve_commands.register(app)
 extract_commands.register(app)
+worker_commands.register(app)
 app.add_typer(bench_commands.app, name="bench")
 
 

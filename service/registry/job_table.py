@@ -213,6 +213,16 @@ class JobTable:
             )
         return True
 
+    def discard_queued_job(self, job_id: str) -> bool:
+        """Forget a job that was never queued anywhere (its queue was unreachable), so its
+        idempotency key can be used again. Jobs that started are never deleted."""
+        with self.db.transaction() as conn:
+            cur = conn.execute(
+                "DELETE FROM jobs WHERE id = ? AND state = 'queued' AND started_at IS NULL",
+                (job_id,),
+            )
+        return cur.rowcount == 1
+
     def fail_job(self, job_id: str, error: str) -> bool:
         """Failed with ``error``; False if the job had already finished."""
         with self.db.transaction() as conn:
