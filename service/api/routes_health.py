@@ -24,5 +24,7 @@ def readyz(request: Request) -> JSONResponse:
 
 @router.get("/metrics", summary="Prometheus metrics", response_class=Response)
 def metrics(request: Request) -> Response:
-    registry = request.app.state.context.metrics.registry
+    ctx = request.app.state.context
+    ctx.service.sync_job_metrics()
+    registry = ctx.metrics.registry
     return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

@@ -4,6 +4,7 @@ below them, so validation, errors, metrics and hot-swap semantics are the same e
 from __future__ import annotations
 
 import time
+from datetime import UTC, datetime
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import IO, TYPE_CHECKING, Any
@@ -80,6 +81,7 @@ class LocalizationService:
         self.backend = backend
         self.store = store
         self.metrics = metrics or ServiceMetrics()
+        self._started_at = datetime.now(UTC)
 
     # -- serving ----------------------------------------------------------------------
     def served(self, name: str) -> LoadedModel:
@@ -193,10 +195,25 @@ class LocalizationService:
 
     def get_job(self, job_id: str) -> JobInfo:
         job = self.backend.get_job(job_id)
-        if job.state in ("succeeded", "failed") and job.started_at and job.finished_at:
-            secs = (job.finished_at - job.started_at).total_seconds()
-            self.metrics.observe_job(job.id, job.state, secs)
+        self._observe(job)
         return job
+
+    def _observe(self, job: JobInfo) -> None:
+        if job.state in ("succeeded", "failed") and job.started_at and job.finished_at:
+            finished = job.finished_at
+            if finished.tzinfo is None:
+                finished = finished.replace(tzinfo=UTC)
+            if finished >= self._started_at:  # not jobs of earlier server runs
+                secs = (job.finished_at - job.started_at).total_seconds()
+                self.metrics.observe_job(job.id, job.state, secs)
+
+    def sync_job_metrics(self) -> None:
+        """Record the durations of jobs finished since start (called before a scrape)."""
+        list_jobs = getattr(self.registry, "list_jobs", None)
+        if list_jobs is None:
+            return
+        for job in list_jobs(states=("succeeded", "failed"), limit=200):
+            self._observe(job)
 
     def queue_depth(self) -> int | None:
         try:
