@@ -27,16 +27,22 @@ def worker(
     burst: Annotated[bool, typer.Option("--burst", help="exit once the queue is empty")] = False,
     name: Annotated[str | None, typer.Option("--name", help="worker name (unique)")] = None,
     monitoring_interval: Annotated[
-        int, typer.Option("--monitoring-interval", min=1, help="heartbeat interval while training (s)")
+        int,
+        typer.Option("--monitoring-interval", min=1, help="heartbeat interval while training (s)"),
     ] = DEFAULT_MONITORING_INTERVAL_S,
     heartbeat_grace: Annotated[
-        int, typer.Option("--heartbeat-grace", min=1,
-                          help="a silent worker's job is abandoned this long after its last heartbeat (s)")
-    ] = DEFAULT_HEARTBEAT_GRACE_S,  # fmt: skip
+        int,
+        typer.Option(
+            "--heartbeat-grace", min=1,
+            help="a silent worker's job is abandoned this long after its last heartbeat (s)",
+        ),
+    ] = DEFAULT_HEARTBEAT_GRACE_S,
     maintenance_interval: Annotated[
-        int, typer.Option("--maintenance-interval", min=1,
-                          help="how often to clean up jobs of dead workers (s)")
-    ] = DEFAULT_MAINTENANCE_INTERVAL_S,  # fmt: skip
+        int,
+        typer.Option(
+            "--maintenance-interval", min=1, help="how often to clean up jobs of dead workers (s)"
+        ),
+    ] = DEFAULT_MAINTENANCE_INTERVAL_S,
 ) -> None:
     """Run an RQ training worker; start several, on any host that shares the data directory."""
     from service.jobs.worker import run_worker

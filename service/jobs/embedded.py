@@ -17,7 +17,13 @@ import os
 import socket
 import threading
 import time
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_EXCEPTION,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, TypeVar
@@ -194,11 +200,12 @@ class EmbeddedBackend:
         if owner is None or owner == self._owner:
             return
         host, _, pid = owner.rpartition(":")
-        if host == socket.gethostname() and pid.isdigit() and not _pid_alive(int(pid)):
-            if self._registry.fail_job(
-                job_id, f"the server process {pid} that ran this job exited before it finished"
-            ):
-                Workspace(self._data_dir, job_id).remove()
+        if host != socket.gethostname() or not pid.isdigit() or _pid_alive(int(pid)):
+            return
+        if self._registry.fail_job(
+            job_id, f"the server process {pid} that ran this job exited before it finished"
+        ):
+            Workspace(self._data_dir, job_id).remove()
 
 
 def _terminate(pool: ProcessPoolExecutor) -> None:

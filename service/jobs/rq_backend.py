@@ -106,11 +106,13 @@ class RQBackend:
     # -- internals ------------------------------------------------------------------------
     def _enqueue(self, job_id: str, n_chunks: int) -> None:
         ids = rq_tasks.part_ids(job_id, n_chunks)
-        common: dict[str, Any] = dict(
-            job_timeout=self._settings.job_timeout_s, result_ttl=RESULT_TTL_S,
-            failure_ttl=FAILURE_TTL_S, on_failure=Callback(rq_tasks.on_part_failure),
-            description=f"gridplace training job {job_id}",
-        )  # fmt: skip
+        common: dict[str, Any] = {
+            "job_timeout": self._settings.job_timeout_s,
+            "result_ttl": RESULT_TTL_S,
+            "failure_ttl": FAILURE_TTL_S,
+            "on_failure": Callback(rq_tasks.on_part_failure),
+            "description": f"gridplace training job {job_id}",
+        }
         args = (self._data_dir, job_id)
         q = self.queue
         if n_chunks == 1:
@@ -118,12 +120,15 @@ class RQBackend:
             return
         prep = q.enqueue(rq_tasks.prepare, *args, job_id=ids["prepare"], **common)
         parts = [
-            q.enqueue(rq_tasks.train_chunk, *args, c, job_id=ids[f"chunk-{c}"], depends_on=prep,
-                      **common)  # fmt: skip
+            q.enqueue(
+                rq_tasks.train_chunk, *args, c, job_id=ids[f"chunk-{c}"], depends_on=prep, **common
+            )
             for c in range(n_chunks)
         ]
-        parts.append(q.enqueue(rq_tasks.train_classifier, *args, job_id=ids["classifier"],
-                               depends_on=prep, **common))  # fmt: skip
+        parts.append(
+            q.enqueue(rq_tasks.train_classifier, *args, job_id=ids["classifier"],
+                      depends_on=prep, **common)
+        )  # fmt: skip
         q.enqueue(rq_tasks.assemble, *args, job_id=ids["assemble"], depends_on=parts, **common)
 
     def _reconcile(self, job: JobInfo, n_chunks: int) -> None:

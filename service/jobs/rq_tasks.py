@@ -115,5 +115,5 @@ def cancel_waiting_parts(connection: Redis, job_id: str, n_chunks: int) -> None:
                 part.cancel()
         except NoSuchJobError:
             continue
-        except Exception:  # noqa: BLE001 - cancelling is best effort; the job is failed anyway
+        except Exception:
             log.exception("could not cancel %s", rq_id)

@@ -1,6 +1,13 @@
 """The versioned registry of maps, immutable model versions and training jobs (SQLite)."""
 
-from service.registry.models import TERMINAL_STATES, JobInfo, JobSpec, JobState, MapInfo, VersionInfo
+from service.registry.models import (
+    TERMINAL_STATES,
+    JobInfo,
+    JobSpec,
+    JobState,
+    MapInfo,
+    VersionInfo,
+)
 from service.registry.names import MAP_NAME_PATTERN, check_map_name, check_version
 from service.registry.registry import Registry
 

@@ -88,6 +88,11 @@ def from_text(text: str | None) -> datetime | None:
     return None if text is None else datetime.fromisoformat(text)
 
 
+def ts(text: str) -> datetime:
+    """A timestamp column that is never NULL."""
+    return datetime.fromisoformat(text)
+
+
 def dumps(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=_json_default)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from service.errors import InvalidInputError, NotFoundError
-from service.registry.db import Database, dumps, from_text, loads, to_text, utcnow
+from service.registry.db import Database, dumps, from_text, loads, to_text, ts, utcnow
 from service.registry.models import JobInfo, JobSpec
 from service.registry.names import check_map_name
 
@@ -31,7 +31,7 @@ def _job_from_row(row: sqlite3.Row) -> JobInfo:
         stage=row["stage"],
         chunks_done=row["chunks_done"],
         chunks_total=row["chunks_total"],
-        created_at=from_text(row["created_at"]),
+        created_at=ts(row["created_at"]),
         started_at=from_text(row["started_at"]),
         finished_at=from_text(row["finished_at"]),
         error=row["error"],

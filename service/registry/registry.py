@@ -27,7 +27,7 @@ from typing import Any
 from service.encoding import PlaceRecognizer, load_model, read_manifest, save_model
 from service.encoding.artifacts import MANIFEST, TENSORS
 from service.errors import ArtifactError, ConflictError, NotFoundError
-from service.registry.db import Database, dumps, from_text, loads, to_text, utcnow
+from service.registry.db import Database, dumps, loads, to_text, ts, utcnow
 from service.registry.job_table import JobTable
 from service.registry.models import MapInfo, VersionInfo
 from service.registry.names import check_map_name, check_version
@@ -142,6 +142,7 @@ class Registry(JobTable):
         first version, which becomes active). A job publishes at most one version: a retried
         job gets back the version it already published."""
         check_map_name(name)
+        model._check_fitted()  # NotFittedError before a version number is spent
         if job_id is not None and (done := self.version_for_job(job_id)) is not None:
             return done
         version = self._reserve_version(name)
@@ -312,7 +313,7 @@ class Registry(JobTable):
             name=row["name"],
             active_version=row["active_version"],
             versions=versions,
-            created_at=from_text(row["created_at"]),
+            created_at=ts(row["created_at"]),
         )
 
     @staticmethod
@@ -326,7 +327,7 @@ class Registry(JobTable):
             kind=row["kind"],
             params=loads(row["params"]),
             extractor=loads(row["extractor"]),
-            created_at=from_text(row["created_at"]),
+            created_at=ts(row["created_at"]),
             sha256=row["sha256"],
             footprint=loads(row["footprint"]),
             artifact_bytes=row["artifact_bytes"],

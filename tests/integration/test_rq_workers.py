@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from redis import Redis
+from redis.exceptions import RedisError
 from rq import Worker
 from rq.job import Job
 from rq.registry import StartedJobRegistry
@@ -58,7 +59,7 @@ def redis_url() -> Iterator[str]:
         try:
             client.ping()
             break
-        except Exception:
+        except RedisError:
             if proc.poll() is not None or time.monotonic() > deadline:
                 proc.kill()
                 pytest.fail(f"redis-server did not start on port {port}")
@@ -237,7 +238,7 @@ def test_killed_worker_fails_the_job_and_publishes_nothing(data_dir, redis_url, 
         assert time.monotonic() < deadline, f"no chunk part started: {backend.get_job(job.id)}"
         running = chunk_ids & set(started.get_job_ids(cleanup=False))
         if running:
-            part = Job.fetch(sorted(running)[0], connection=backend.queue.connection,
+            part = Job.fetch(min(running), connection=backend.queue.connection,
                              serializer=SERIALIZER)  # fmt: skip
             victim = part.worker_name
         else:

@@ -89,9 +89,9 @@ def test_same_idempotency_key_never_trains_twice(backend, registry, route_file, 
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        (dict(periods=(5, 5)), "product of periods"),
-        (dict(n_chunks=2, periods=(4, 4)), "product of periods"),
-        (dict(n_chunks=300), "too few"),
+        ({"periods": (5, 5)}, "product of periods"),
+        ({"n_chunks": 2, "periods": (4, 4)}, "product of periods"),
+        ({"n_chunks": 300}, "too few"),
     ],
 )
 def test_impossible_parameters_fail_clearly_without_a_version(

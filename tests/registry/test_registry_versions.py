@@ -136,3 +136,14 @@ def test_publishing_a_job_twice_returns_its_one_version(registry, publish, model
     assert again.version == first.version
     assert registry.get_map("route-a").versions == [1]
     assert registry.version_for_job("job-1").version == 1
+
+
+def test_an_unfitted_model_is_refused_before_anything_is_written(registry):
+    from service.encoding import PhaseEncoder
+    from service.errors import NotFittedError
+
+    with pytest.raises(NotFittedError):
+        registry.publish("route-a", PhaseEncoder(), params={}, extractor=None, metrics={})
+    with pytest.raises(NotFoundError):
+        registry.get_map("route-a")
+    assert registry.generation() == 0
