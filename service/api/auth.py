@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import secrets
 
-from fastapi import Request
+from typing import Annotated
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.api.errors import error_response
@@ -29,8 +32,14 @@ def check_admin(settings: Settings, authorization: str | None) -> None:
         raise UnauthorizedError("invalid admin token")
 
 
-def require_admin(request: Request) -> None:
-    """FastAPI dependency for the admin router."""
+_bearer = HTTPBearer(auto_error=False, description="the server's GRIDPLACE_ADMIN_TOKEN")
+
+
+def require_admin(
+    request: Request,
+    _: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)] = None,
+) -> None:
+    """FastAPI dependency for the admin router (also documents bearer auth in /docs)."""
     check_admin(request.app.state.context.settings, request.headers.get("authorization"))
 
 
