@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-import io
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from api_fakes import FakeRegistry, InlineBackend
+from api_helpers import TOKEN, npy_bytes
 from fastapi.testclient import TestClient
-from PIL import Image
 
 from service.api.app import create_app
 from service.core.context import build_context
 from service.encoding.synthetic import smooth_route
 from service.settings import Settings
 
-TOKEN = "s3cret-admin-token"
 N, D = 120, 32
 
 
@@ -55,18 +53,6 @@ def auth() -> dict[str, str]:
     return {"Authorization": f"Bearer {TOKEN}"}
 
 
-def npy_bytes(X: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, X, allow_pickle=False)
-    return buf.getvalue()
-
-
-def png_bytes(seed: int, size: tuple[int, int] = (64, 32)) -> bytes:
-    rng = np.random.default_rng(seed)
-    img = Image.fromarray(rng.integers(0, 255, (size[1], size[0]), dtype=np.uint8))
-    buf = io.BytesIO()
-    img.save(buf, format="PNG")
-    return buf.getvalue()
 
 
 @pytest.fixture
@@ -80,7 +66,3 @@ def trained(client: TestClient, auth: dict[str, str], route: tuple[np.ndarray, n
     client.app.state.context.store.refresh()  # type: ignore[attr-defined]
     return "synthetic"
 
-
-def expected_index(registry: FakeRegistry, name: str, version: int, X: np.ndarray) -> list[int]:
-    """The in-process model's answers: what REST must return."""
-    return registry.load_model(name, version).localize(np.atleast_2d(X)).index.tolist()

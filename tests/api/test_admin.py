@@ -7,7 +7,7 @@ import pickle
 import zipfile
 
 import numpy as np
-from conftest import TOKEN, expected_index, npy_bytes
+from api_helpers import TOKEN, expected_index, npy_bytes
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app

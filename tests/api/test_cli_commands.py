@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from conftest import png_bytes
+from api_helpers import png_bytes
 from typer.testing import CliRunner
 
 from service.cli import app

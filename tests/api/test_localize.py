@@ -5,7 +5,7 @@ from __future__ import annotations
 import base64
 
 import pytest
-from conftest import expected_index, png_bytes
+from api_helpers import expected_index, png_bytes
 from fastapi.testclient import TestClient
 
 

@@ -8,7 +8,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from conftest import png_bytes
+from api_helpers import png_bytes
 
 from service.core.uploads import parse_route, store_descriptors
 from service.errors import (
