@@ -137,10 +137,14 @@ class Registry(JobTable):
         extractor: dict[str, Any] | None,
         metrics: dict[str, Any],
         job_id: str | None = None,
+        activate: bool | None = None,
     ) -> VersionInfo:
-        """Store a fitted model as the next version of ``name`` (the map is created on its
-        first version, which becomes active). A job publishes at most one version: a retried
-        job gets back the version it already published."""
+        """Store a fitted model as the next version of ``name``.
+
+        The map is created on its first version. ``activate``: ``None`` activates the version
+        only if the map has no other version (the first one), ``True`` activates it, ``False``
+        never does. A job publishes at most one version: a retried job gets back the version
+        it already published."""
         check_map_name(name)
         model._check_fitted()  # NotFittedError before a version number is spent
         if job_id is not None and (done := self.version_for_job(job_id)) is not None:
@@ -154,7 +158,7 @@ class Registry(JobTable):
         manifest = save_model(model, path, extra=extra)
         try:
             committed = self._commit_version(name, version, path, manifest, params, extractor,
-                                             metrics, job_id)  # fmt: skip
+                                             metrics, job_id, activate)  # fmt: skip
         except BaseException:
             self._discard(path)
             raise
@@ -176,6 +180,15 @@ class Registry(JobTable):
             conn.execute("UPDATE maps SET active_version = ? WHERE name = ?", (version, name))
             self.db.bump_generation(conn)
         return self.get_version(name, version)
+
+    def deactivate(self, name: str) -> MapInfo:
+        """Take a map out of service: no version is served until one is activated again."""
+        check_map_name(name)
+        with self.db.transaction() as conn:
+            self._map_row(conn, name)
+            conn.execute("UPDATE maps SET active_version = NULL WHERE name = ?", (name,))
+            self.db.bump_generation(conn)
+        return self.get_map(name)
 
     def delete_version(self, name: str, version: int) -> None:
         """Delete an inactive version and its artifact; the active one is refused (409)."""
@@ -246,6 +259,7 @@ class Registry(JobTable):
         extractor: dict[str, Any] | None,
         metrics: dict[str, Any],
         job_id: str | None,
+        activate: bool | None = None,
     ) -> int | None:
         """The one metadata transaction of a publish; None if ``job_id`` already published."""
         try:
@@ -263,6 +277,10 @@ class Registry(JobTable):
             ).fetchone():
                 return None
             conn.execute("INSERT OR IGNORE INTO maps (name, created_at) VALUES (?, ?)", (name, now))
+            if activate is None:  # the first version (of a new or emptied map) goes live
+                activate = not conn.execute(
+                    "SELECT 1 FROM versions WHERE map = ? LIMIT 1", (name,)
+                ).fetchone()
             conn.execute(
                 "INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
                 "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id) "
@@ -271,10 +289,8 @@ class Registry(JobTable):
                  manifest["kind"], dumps(params), None if extractor is None else dumps(extractor),
                  now, sha, dumps(footprint), artifact_bytes, dumps(metrics), job_id),
             )  # fmt: skip
-            conn.execute(
-                "UPDATE maps SET active_version = ? WHERE name = ? AND active_version IS NULL",
-                (version, name),
-            )
+            if activate:
+                conn.execute("UPDATE maps SET active_version = ? WHERE name = ?", (version, name))
             self.db.bump_generation(conn)
         return version
 

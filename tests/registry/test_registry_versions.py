@@ -147,3 +147,35 @@ def test_an_unfitted_model_is_refused_before_anything_is_written(registry):
     with pytest.raises(NotFoundError):
         registry.get_map("route-a")
     assert registry.generation() == 0
+
+
+def test_deactivate_takes_a_map_out_of_service(registry, publish, model, other_model):
+    publish(model)
+    gen = registry.generation()
+    info = registry.deactivate("route-a")
+    assert info.active_version is None and info.versions == [1]
+    assert registry.active_version("route-a") is None
+    assert registry.generation() > gen
+    v2 = publish(other_model)  # not the first version: stays inactive
+    assert not v2.active and registry.get_map("route-a").active_version is None
+    registry.delete_version("route-a", 1)  # nothing is active, so anything can go
+    registry.activate("route-a", 2)
+    assert registry.active_version("route-a").version == 2
+    with pytest.raises(NotFoundError):
+        registry.deactivate("nowhere")
+
+
+def test_explicit_activation_at_publish(registry, model, other_model):
+    kw = {"params": {}, "extractor": None, "metrics": {}}
+    assert not registry.publish("m", model, activate=False, **kw).active
+    assert registry.get_map("m").active_version is None
+    assert registry.publish("m", other_model, activate=True, **kw).active
+    assert registry.get_map("m").active_version == 2
+
+
+def test_an_emptied_map_auto_activates_its_next_version(registry, publish, model, other_model):
+    publish(model)
+    registry.deactivate("route-a")
+    registry.delete_version("route-a", 1)
+    assert registry.get_map("route-a").versions == []
+    assert publish(other_model).active
