@@ -10,6 +10,8 @@ it configurable, so a dead worker is noticed in ``monitoring interval + grace`` 
 from __future__ import annotations
 
 import logging
+import os
+from typing import Any
 
 from redis import Redis
 from rq import Queue, Worker
@@ -34,6 +36,17 @@ class GridplaceWorker(Worker):
         return int(interval) + int(self.heartbeat_grace_s)
 
 
+def _horse_killed(job: Job, pid: int, status: int, rusage: Any) -> None:
+    """RQ marks a job whose work horse died (OOM killer, SIGKILL) failed without running its
+    failure callback; fail the gridplace job here instead of waiting for a poll."""
+    signal_note = f" by signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else ""
+    rq_tasks.on_part_failure(
+        job, job.connection, RuntimeError,
+        RuntimeError(f"its training process {pid} was killed{signal_note} (out of memory?)"),
+        None,
+    )  # fmt: skip
+
+
 def run_worker(
     redis_url: str,
     queue_name: str,
@@ -55,6 +68,7 @@ def run_worker(
         serializer=rq_tasks.SERIALIZER,
         job_monitoring_interval=monitoring_interval_s,
         maintenance_interval=maintenance_interval_s,
+        work_horse_killed_handler=_horse_killed,
     )
     worker.heartbeat_grace_s = heartbeat_grace_s
     logging.basicConfig(level=log_level.upper())

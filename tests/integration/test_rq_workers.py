@@ -260,6 +260,35 @@ def test_killed_worker_fails_the_job_and_publishes_nothing(data_dir, redis_url, 
     backend.close()
 
 
+def test_killed_training_process_fails_the_job_at_once(data_dir, redis_url, workers):
+    """The OOM-killer case: the work horse dies, its worker survives and reports it."""
+    queue = f"q-{uuid.uuid4().hex[:8]}"
+    pool = workers(queue, 1)
+    backend, registry = _backend(data_dir, redis_url, queue)
+    route = _route(data_dir, 1200, 256, seed=4)
+    job = backend.submit("oom", route, ModelParams.parse(trainer="logreg", n_chunks=2), None, None)
+    proc = next(iter(pool.procs.values()))
+    chunk_ids = {part_ids(job.id, 2)[f"chunk-{c}"] for c in range(2)}
+    started = StartedJobRegistry(queue=backend.queue)
+    deadline = time.monotonic() + 60
+    while not chunk_ids & set(started.get_job_ids(cleanup=False)):
+        assert time.monotonic() < deadline, f"no chunk part started: {backend.get_job(job.id)}"
+        time.sleep(0.02)
+    while not (horses := _children(proc.pid)):  # the part is registered just before the fork
+        assert time.monotonic() < deadline, "the worker runs its job in a forked work horse"
+        time.sleep(0.01)
+    for pid in horses:
+        os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 30
+    while not (got := registry.get_job(job.id)).done:  # no polling of the backend needed
+        assert time.monotonic() < deadline, got
+        time.sleep(0.05)
+    assert got.state == "failed" and "killed by signal 9" in got.error, got.error
+    assert registry.version_for_job(job.id) is None
+    assert proc.poll() is None  # the worker itself lives on
+    backend.close()
+
+
 def test_unreachable_redis_is_unavailable_and_leaves_no_job(data_dir):
     url = f"redis://127.0.0.1:{_free_port()}/0"  # nothing listens there
     backend, registry = _backend(data_dir, url, "gridplace")
