@@ -121,6 +121,12 @@ def activate(request: Request, name: str, version: int) -> VersionOut:
     return VersionOut.model_validate(_service(request).activate(name, version))
 
 
+@router.post("/maps/{name}/deactivate", response_model=MapOut,
+             summary="Take a map out of service (localize answers 409)")  # fmt: skip
+def deactivate(request: Request, name: str) -> MapOut:
+    return MapOut.model_validate(_service(request).deactivate(name))
+
+
 @router.delete("/maps/{name}/versions/{version}", status_code=204,
                summary="Delete an inactive version")  # fmt: skip
 def delete_version(request: Request, name: str, version: int) -> Response:

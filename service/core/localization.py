@@ -4,9 +4,9 @@ below them, so validation, errors, metrics and hot-swap semantics are the same e
 from __future__ import annotations
 
 import time
-from datetime import UTC, datetime
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
@@ -237,6 +237,12 @@ class LocalizationService:
     def activate(self, name: str, version: int) -> VersionInfo:
         """Activate (or roll back to) a version; served by this process when this returns."""
         info = self.registry.activate(name, version)
+        self.store.refresh()
+        return info
+
+    def deactivate(self, name: str) -> MapInfo:
+        """Take a map out of service: localize answers 409 until a version is activated."""
+        info = self.registry.deactivate(name)
         self.store.refresh()
         return info
 

@@ -98,10 +98,12 @@ class FakeRegistry:
             self._gen += 1
         return self.get_version(name, version)
 
-    def deactivate(self, name: str) -> None:  # test helper: a map without an active version
+    def deactivate(self, name: str) -> MapInfo:
+        self._map(name)
         with self._lock:
             self._maps[name].active_version = None
             self._gen += 1
+        return self.get_map(name)
 
     def delete_version(self, name: str, version: int) -> None:
         m = self._map(name)

@@ -93,9 +93,10 @@ def test_empty_and_malformed_bodies(client: TestClient, trained: str) -> None:
     assert r.status_code == 400
 
 
-def test_no_active_version_is_409(client: TestClient, trained: str, registry) -> None:
-    registry.deactivate(trained)
-    client.app.state.context.store.refresh()
+def test_no_active_version_is_409(client: TestClient, trained: str, auth) -> None:
+    d = client.post(f"/v1/maps/{trained}/deactivate", headers=auth)
+    assert d.status_code == 200 and d.json()["active_version"] is None
+    assert client.post("/v1/maps/nowhere/deactivate", headers=auth).status_code == 404
     r = client.post("/v1/localize", json={"map": trained, "descriptor": [0.0] * 32})
     assert r.status_code == 409 and r.json()["error"] == "conflict"
 
