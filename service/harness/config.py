@@ -44,6 +44,7 @@ class BenchConfig:
     timing_k: int = 2
     timing_rho: float = 0.5
     single_query_repeats: int = 20
+    timing_repeats: int = 3  # fits per point for the fast trainers; the fastest one counts
     # 3. precision vs k
     pattern_ks: tuple[int, ...] = (2, 3, 4, 5)
     pattern_rho: float = 0.5

@@ -118,13 +118,13 @@ def plot_retrieval(res: dict[str, Any], meta: str, footer: str, path: Path) -> P
     fig, axes = plt.subplots(1, 2, figsize=(10.5, 3.9))
     for ax, cond in zip(axes, ("identical", "cross"), strict=True):
         tol = None
-        for row in res["rows"]:
+        styles = {"gridplace": "-", "yu": "-.", "exact_nn": "--", "pq": ":"}
+        for i, row in enumerate(res["rows"]):
             if "error" in row:
                 continue
             pr = row[cond]["pr"]
             tol = row[cond]["pr_tolerance"]
-            ax.plot(pr["recall"], pr["precision"], color=COLORS.get(row["method"]),
-                    ls="-" if row["method"] != "pq" else ":",
+            ax.plot(pr["recall"], pr["precision"], color=f"C{i}", ls=styles[row["method"]],
                     label=f"{row['label']} AP={pr['average_precision']:.2f}")  # fmt: skip
         ax.set_xlabel("recall (accepted and correct / all queries)")
         ax.set_ylabel("precision of accepted queries")

@@ -143,7 +143,8 @@ def timing_section(res: dict[str, Any], fig: str | None) -> str:
     head = ["method / trainer", *(f"train s N={n}" for n in sizes), "a (time ∝ N^a)",
             f"query µs batch / single, N={sizes[-1]}"]  # fmt: skip
     out = ["## 2. Training and query time vs N (paper Table II)", "",
-           (f"Same machine, same run; k and ρ as in the JSON `params`. The slow trainers "
+           (f"Same machine, same run; k and ρ as in the JSON `params`; fastest of the repeated fits "
+            "(see `repeats` in the JSON). The slow trainers "
            f"({', '.join(res['slow_trainers'])}) stop at N ≤ {res['slow_trainer_max_n']} in "
            "this budget."), "",
            _table(head, rows), ""]  # fmt: skip
