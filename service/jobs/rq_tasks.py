@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from redis import Redis
-from rq.exceptions import NoSuchJobError
+from redis.exceptions import RedisError
 from rq.job import Job, JobStatus
 from rq.serializers import JSONSerializer
 
@@ -108,12 +108,12 @@ def fail_job(data_dir: Path, job_id: str, message: str, connection: Redis) -> No
 
 
 def cancel_waiting_parts(connection: Redis, job_id: str, n_chunks: int) -> None:
-    for rq_id in part_ids(job_id, n_chunks).values():
-        try:
-            part = Job.fetch(rq_id, connection=connection, serializer=SERIALIZER)
-            if part.get_status(refresh=False) in _WAITING:
+    """Cancel the parts that have not started (best effort: the job is failed anyway)."""
+    ids = list(part_ids(job_id, n_chunks).values())
+    try:
+        parts = Job.fetch_many(ids, connection=connection, serializer=SERIALIZER)
+        for part in parts:
+            if part is not None and part.get_status(refresh=False) in _WAITING:
                 part.cancel()
-        except NoSuchJobError:
-            continue
-        except Exception:
-            log.exception("could not cancel %s", rq_id)
+    except RedisError as exc:
+        log.warning("could not cancel the waiting parts of job %s: %s", job_id, exc)
