@@ -16,7 +16,7 @@ import time
 from datetime import UTC, datetime
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -110,8 +110,7 @@ def _started(registry: Registry, job_id: str, stage: str, total: int | None = No
 
 def _validate(params: ModelParams, n_features: int, sizes: list[int]) -> None:
     """Fail before any training for parameters that cannot fit this route."""
-    encoder = build_model(params.model_copy(update={"n_chunks": 1}))
-    assert isinstance(encoder, PhaseEncoder)
+    encoder = cast(PhaseEncoder, build_model(params.model_copy(update={"n_chunks": 1})))
     encoder._validate_params(n_features)
     if params.periods is not None:
         for size in sizes:

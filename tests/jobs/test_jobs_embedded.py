@@ -138,3 +138,18 @@ def test_closed_backend_fails_its_unfinished_jobs(data_dir, registry, route_file
     if got.state == "failed":
         assert "shut down" in got.error or "died" in got.error
     assert Path(data_dir).exists()
+
+
+def test_a_job_over_its_time_limit_fails_and_publishes_nothing(data_dir, registry, wait_done):
+    path = data_dir / "uploads" / "synthetic-long.npy"
+    np.save(path, smooth_route(2400, 256, seed=9).reference)  # SYNTHETIC; logreg takes seconds
+    b = EmbeddedBackend(Settings(data_dir=data_dir, train_workers=1, job_timeout_s=1), registry)
+    try:
+        job = b.submit("slow", path, ModelParams.parse(trainer="logreg"), None, None)
+        done = wait_done(b, job.id, timeout=30)
+        assert done.state == "failed" and "time limit of 1 s" in done.error
+    finally:
+        b.close()  # stops the training process still working on it
+    assert registry.version_for_job(job.id) is None
+    with pytest.raises(NotFoundError):
+        registry.get_map("slow")
