@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -31,6 +32,11 @@ class Settings(BaseSettings):
         1.0, gt=0, description="how often the server checks the registry for activations"
     )
     log_level: str = Field("info", description="uvicorn / logging level")
+    registry_journal_mode: Literal["wal", "delete"] = Field(
+        "wal",
+        description="SQLite journal of the registry: wal (every process on one host) or delete "
+        "(hosts sharing data_dir over a network filesystem, where WAL's shared memory fails)",
+    )
 
 
 @lru_cache(maxsize=1)

@@ -14,11 +14,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from service.errors import UnavailableError
 
 SCHEMA_VERSION = 1
+JournalMode = Literal["wal", "delete"]
 BUSY_TIMEOUT_MS = 30_000
 
 SCHEMA = """
@@ -116,11 +117,16 @@ def _json_default(value: Any) -> Any:
 class Database:
     """Connections to ``registry.sqlite3`` with the pragmas every connection needs."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, journal_mode: JournalMode = "wal") -> None:
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         with self.connect() as conn:
-            conn.execute("PRAGMA journal_mode=WAL")
+            mode = conn.execute(f"PRAGMA journal_mode={journal_mode.upper()}").fetchone()[0]
+            if str(mode).lower() != journal_mode:
+                raise UnavailableError(
+                    f"the registry database {path} is in {mode} mode and cannot switch to "
+                    f"{journal_mode} while other processes use it; use one journal mode everywhere"
+                )
             with self.write(conn):
                 for statement in SCHEMA.split(";"):
                     if statement.strip():

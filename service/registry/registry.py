@@ -27,10 +27,11 @@ from typing import Any
 from service.encoding import PlaceRecognizer, load_model, read_manifest, save_model
 from service.encoding.artifacts import MANIFEST, TENSORS
 from service.errors import ArtifactError, ConflictError, NotFoundError
-from service.registry.db import Database, dumps, loads, to_text, ts, utcnow
+from service.registry.db import Database, JournalMode, dumps, loads, to_text, ts, utcnow
 from service.registry.job_table import JobTable
 from service.registry.models import MapInfo, VersionInfo
 from service.registry.names import check_map_name, check_version
+from service.settings import get_settings
 
 DB_FILE = "registry.sqlite3"
 ORPHAN_GRACE_S = 3600.0  # a publish in flight is never this slow between save and commit
@@ -40,11 +41,21 @@ _VERSION_DIR = re.compile(r"^v([0-9]+)$")
 class Registry(JobTable):
     """Maps, versions and jobs of one data directory (safe from many processes)."""
 
-    def __init__(self, data_dir: Path, *, cleanup_grace_s: float | None = ORPHAN_GRACE_S) -> None:
+    def __init__(
+        self,
+        data_dir: Path,
+        *,
+        cleanup_grace_s: float | None = ORPHAN_GRACE_S,
+        journal_mode: JournalMode | None = None,
+    ) -> None:
+        """``journal_mode`` defaults to ``settings.registry_journal_mode`` (``wal``); use
+        ``delete`` where hosts share ``data_dir`` over a network filesystem."""
         self.data_dir = Path(data_dir)
         self.artifacts_dir = self.data_dir / "artifacts"
         self.artifacts_dir.mkdir(parents=True, exist_ok=True)
-        self.db = Database(self.data_dir / DB_FILE)
+        if journal_mode is None:
+            journal_mode = get_settings().registry_journal_mode
+        self.db = Database(self.data_dir / DB_FILE, journal_mode)
         if cleanup_grace_s is not None:
             self.cleanup_orphans(min_age_s=cleanup_grace_s)
 

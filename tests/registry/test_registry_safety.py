@@ -15,6 +15,7 @@ import pytest
 from service.encoding import PlaceRecognizer
 from service.errors import ArtifactError, NotFoundError
 from service.registry import Registry
+from service.registry.db import JournalMode
 
 
 def test_corrupt_tensors_are_detected_on_load(registry, publish, model):
@@ -137,19 +138,23 @@ def test_generation_bumps_on_publish_activate_delete_only(registry, publish, mod
     assert g0 < g1 < g2 < g3 < g4
 
 
-def _publish_many(data_dir: str, model: PlaceRecognizer, n: int, out: mp.Queue) -> None:
-    reg = Registry(Path(data_dir))
+def _publish_many(
+    data_dir: str, model: PlaceRecognizer, n: int, out: mp.Queue, mode: JournalMode
+) -> None:
+    reg = Registry(Path(data_dir), journal_mode=mode)
     out.put([
         reg.publish("shared", model, params={}, extractor=None, metrics={}).version
         for _ in range(n)
     ])  # fmt: skip
 
 
-def test_concurrent_publishes_from_two_processes_get_distinct_versions(tmp_path, model):
+@pytest.mark.parametrize("mode", ["wal", "delete"])
+def test_concurrent_publishes_from_two_processes_get_distinct_versions(tmp_path, model, mode):
     ctx = mp.get_context("fork")  # no threads in the test process; fork keeps this fast
     out: mp.Queue = ctx.Queue()
-    Registry(tmp_path)  # create the schema once
-    procs = [ctx.Process(target=_publish_many, args=(str(tmp_path), model, 4, out)) for _ in range(2)]
+    Registry(tmp_path, journal_mode=mode)  # create the schema once
+    procs = [ctx.Process(target=_publish_many, args=(str(tmp_path), model, 4, out, mode))
+             for _ in range(2)]  # fmt: skip
     for p in procs:
         p.start()
     results = [out.get(timeout=60) for _ in procs]
@@ -158,10 +163,23 @@ def test_concurrent_publishes_from_two_processes_get_distinct_versions(tmp_path,
         assert p.exitcode == 0
     versions = sorted(v for r in results for v in r)
     assert versions == list(range(1, 9))
-    reg = Registry(tmp_path)
+    reg = Registry(tmp_path, journal_mode=mode)
     info = reg.get_map("shared")
     assert info.versions == versions
     assert info.active_version in versions[:2] and info.active_version is not None
     assert sum(v.active for v in reg.list_versions("shared")) == 1
     for v in versions:
         reg.load_model("shared", v)
+
+
+def test_rollback_journal_for_network_filesystems(tmp_path, model):
+    import sqlite3
+
+    reg = Registry(tmp_path, journal_mode="delete")
+    reg.publish("m", model, params={}, extractor=None, metrics={})
+    assert reg.load_model("m", 1) is not None
+    with sqlite3.connect(tmp_path / "registry.sqlite3") as conn:
+        assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+    assert not (tmp_path / "registry.sqlite3-wal").exists()
+    again = Registry(tmp_path, journal_mode="wal")  # nobody else connected: it converts
+    assert again.get_map("m").versions == [1]
