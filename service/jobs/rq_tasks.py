@@ -97,14 +97,16 @@ def on_part_failure(
 
 
 def fail_job(data_dir: Path, job_id: str, message: str, connection: Redis) -> None:
-    """Fail the gridplace job, cancel its waiting parts and drop its intermediate files."""
+    """Cancel the job's waiting parts, fail it and drop its intermediate files (in this
+    order: once a job reads ``failed``, none of its parts is still queued)."""
     registry = pipeline.registry_for(str(data_dir))
-    if not registry.fail_job(job_id, message):
+    if registry.get_job(job_id).done:
         return
-    log.warning("training job %s failed: %s", job_id, message)
     spec = registry.get_job_spec(job_id)
     cancel_waiting_parts(connection, job_id, int(spec.params.get("n_chunks", 1)))
-    Workspace(data_dir, job_id).remove()
+    if registry.fail_job(job_id, message):
+        log.warning("training job %s failed: %s", job_id, message)
+        Workspace(data_dir, job_id).remove()
 
 
 def cancel_waiting_parts(connection: Redis, job_id: str, n_chunks: int) -> None:
