@@ -222,6 +222,8 @@ class Registry(JobTable):
         interrupted deletions, temp dirs), once they are ``min_age_s`` old. Returns them."""
         removed: list[Path] = []
         now = time.time()
+        with self.db.connect() as conn:
+            known = {(r[0], int(r[1])) for r in conn.execute("SELECT map, version FROM versions")}
         for map_dir in sorted(p for p in self.artifacts_dir.iterdir() if p.is_dir()):
             for entry in sorted(map_dir.iterdir()):
                 try:
@@ -235,6 +237,8 @@ class Registry(JobTable):
                     if entry.name.startswith("."):  # save_model temp dirs, our trash
                         shutil.rmtree(entry, ignore_errors=True)
                         removed.append(entry)
+                    continue
+                if (map_dir.name, int(match.group(1))) in known:
                     continue
                 # decide under the write lock: a publish commits only if its directory is
                 # still there, so it either wins (row exists) or fails cleanly
