@@ -128,7 +128,9 @@ def train_single(data_dir: Path, job_id: str) -> int:
     model = build_model(params).fit(_rows(X, 0, X.shape[0]))
     fit_s = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s})
-    return _publish(registry, spec, params, model, X, {"fit": fit_s})
+    version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s})
+    registry.finish_job(job_id, version, timings)
+    return version
 
 
 def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
@@ -193,8 +195,9 @@ def assemble(data_dir: Path, job_id: str) -> int:
     )  # fmt: skip
     timing = {"assemble": time.perf_counter() - start}
     registry.record_progress(job_id, timings=timing)
-    version = _publish(registry, spec, params, model, X, timing)
-    workspace.remove()
+    version, timings = _publish(registry, spec, params, model, X, timing)
+    workspace.remove()  # before the job reads succeeded: then nothing of it is left behind
+    registry.finish_job(job_id, version, timings)
     return version
 
 
@@ -216,7 +219,8 @@ def _publish(
     model: PlaceRecognizer,
     X: np.ndarray,
     timings: dict[str, float],
-) -> int:
+) -> tuple[int, dict[str, float]]:
+    """Evaluate and publish; returns the version and the timings to record on success."""
     _started(registry, spec.job_id, "publish")
     start = time.perf_counter()
     metrics: dict[str, Any] = evaluate_on_route(model, X)
@@ -236,6 +240,4 @@ def _publish(
         spec.map, model, params=params.model_dump(mode="json"), extractor=spec.extractor,
         metrics=metrics, job_id=spec.job_id,
     )  # fmt: skip
-    registry.finish_job(spec.job_id, info.version, {"evaluate": eval_s,
-                                                    "publish": time.perf_counter() - start})
-    return info.version
+    return info.version, {"evaluate": eval_s, "publish": time.perf_counter() - start}

@@ -14,9 +14,11 @@ import os
 from typing import Any
 
 from redis import Redis
+from redis.exceptions import RedisError
 from rq import Queue, Worker
 from rq.job import Job
 
+from service.errors import UnavailableError
 from service.jobs import rq_tasks
 
 DEFAULT_MONITORING_INTERVAL_S = 10
@@ -60,6 +62,12 @@ def run_worker(
 ) -> bool:
     """Work on ``queue_name`` until stopped (or, with ``burst``, until it is empty)."""
     connection = Redis.from_url(redis_url, socket_connect_timeout=5, health_check_interval=30)
+    try:
+        connection.ping()
+    except RedisError as exc:
+        kw = connection.connection_pool.connection_kwargs
+        where = kw.get("path") or f"{kw.get('host')}:{kw.get('port')}"
+        raise UnavailableError(f"cannot reach Redis at {where}: {exc}", redis=str(where)) from exc
     queue = Queue(queue_name, connection=connection, serializer=rq_tasks.SERIALIZER)
     worker = GridplaceWorker(
         [queue],

@@ -224,11 +224,26 @@ class JobTable:
         return cur.rowcount == 1
 
     def fail_job(self, job_id: str, error: str) -> bool:
-        """Failed with ``error``; False if the job had already finished."""
+        """Failed with ``error``; False if the job had already finished.
+
+        A job whose version was already published (its process died before recording the
+        success) is finished as succeeded instead: a published version's job never reads
+        failed."""
+        now = to_text(utcnow())
         with self.db.transaction() as conn:
+            published = conn.execute(
+                "SELECT version FROM versions WHERE job_id = ?", (job_id,)
+            ).fetchone()
+            if published is not None:
+                conn.execute(
+                    f"UPDATE jobs SET state = 'succeeded', stage = 'done', version = ?, "
+                    f"chunks_done = chunks_total, finished_at = ? WHERE id = ? AND {_OPEN}",
+                    (published[0], now, job_id),
+                )
+                return False
             cur = conn.execute(
                 f"UPDATE jobs SET state = 'failed', error = ?, finished_at = ? "
                 f"WHERE id = ? AND {_OPEN}",
-                (error[:4000], to_text(utcnow()), job_id),
+                (error[:4000], now, job_id),
             )
         return cur.rowcount == 1

@@ -291,6 +291,13 @@ class Registry(JobTable):
                 "SELECT 1 FROM versions WHERE job_id = ?", (job_id,)
             ).fetchone():
                 return None
+            if job_id is not None and conn.execute(
+                "SELECT 1 FROM jobs WHERE id = ? AND state = 'failed'", (job_id,)
+            ).fetchone():  # serialised with fail_job by the write lock: never both
+                raise ConflictError(
+                    f"training job {job_id} has failed (timed out or cancelled); "
+                    "its model is not published", job_id=job_id,
+                )  # fmt: skip
             conn.execute("INSERT OR IGNORE INTO maps (name, created_at) VALUES (?, ?)", (name, now))
             if activate is None:  # the first version (of a new or emptied map) goes live
                 activate = not conn.execute(

@@ -289,6 +289,32 @@ def test_killed_training_process_fails_the_job_at_once(data_dir, redis_url, work
     backend.close()
 
 
+def test_burst_worker_drains_the_queue_and_exits(data_dir, redis_url):
+    queue = f"q-{uuid.uuid4().hex[:8]}"
+    backend, registry = _backend(data_dir, redis_url, queue)
+    job = backend.submit("burst", _route(data_dir, 240, 16), ModelParams.parse(trainer="ridge",
+                         n_chunks=2), None, None)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "service.cli", "worker", "--redis-url", redis_url, "--queue", queue,
+         "--burst"], capture_output=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr.decode()[-2000:]
+    done = backend.get_job(job.id)
+    assert done.state == "succeeded" and registry.get_map("burst").active_version == 1
+    assert backend.queue_depth() == 0
+    backend.close()
+
+
+def test_worker_without_redis_exits_with_a_clear_error():
+    url = f"redis://127.0.0.1:{_free_port()}/0"
+    proc = subprocess.run(
+        [sys.executable, "-m", "service.cli", "worker", "--redis-url", url, "--burst"],
+        capture_output=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "cannot reach Redis" in proc.stderr.decode()
+
+
 def test_unreachable_redis_is_unavailable_and_leaves_no_job(data_dir):
     url = f"redis://127.0.0.1:{_free_port()}/0"  # nothing listens there
     backend, registry = _backend(data_dir, url, "gridplace")

@@ -82,3 +82,32 @@ def test_listing_and_counting(registry, tmp_path: Path):
     assert registry.count_jobs(["queued", "failed"], backend="embedded") == 2
     assert [j.id for j in registry.list_jobs(map_name="route-a")] == [a.id]
     assert registry.job_owners("embedded") == [(a.id, None)]
+
+
+def test_a_job_whose_version_is_published_never_reads_failed(registry):
+    from service.encoding import ModelParams, build_model
+    from service.encoding.synthetic import smooth_route
+
+    job, _ = _create(registry)
+    registry.mark_running(job.id, "publish", chunks_total=1)
+    model = build_model(ModelParams.parse(trainer="ridge")).fit(smooth_route(60, 8).reference)
+    v = registry.publish("route-a", model, params={}, extractor=None, metrics={}, job_id=job.id)
+    # the process died before recording success; the reaper calls fail_job
+    assert not registry.fail_job(job.id, "worker lost")
+    got = registry.get_job(job.id)
+    assert (got.state, got.version, got.error) == ("succeeded", v.version, None)
+
+
+def test_a_failed_job_cannot_publish(registry):
+    from service.encoding import ModelParams, build_model
+    from service.encoding.synthetic import smooth_route
+    from service.errors import ConflictError
+
+    job, _ = _create(registry)
+    registry.fail_job(job.id, "timed out")
+    model = build_model(ModelParams.parse(trainer="ridge")).fit(smooth_route(60, 8).reference)
+    with pytest.raises(ConflictError, match="has failed"):
+        registry.publish("route-a", model, params={}, extractor=None, metrics={}, job_id=job.id)
+    with pytest.raises(NotFoundError):
+        registry.get_map("route-a")
+    assert not any((registry.data_dir / "artifacts" / "route-a").glob("v*"))
