@@ -8,6 +8,7 @@ from typing import ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from service.errors import GridplaceError
 
@@ -24,7 +25,9 @@ def cli_errors(fn: Callable[P, R]) -> Callable[P, R]:
         try:
             return fn(*args, **kwargs)
         except GridplaceError as exc:
-            err_console.print(f"[bold red]error[/] [{exc.code}]: {exc.message}", highlight=False)
+            err_console.print(
+                f"[bold red]error[/] \\[{exc.code}]: {escape(exc.message)}", highlight=False
+            )
             raise typer.Exit(code=2) from exc
 
     return wrapper

@@ -90,3 +90,4 @@ def test_pickled_input_is_refused(files: dict[str, Path]) -> None:
     res = run("train", evil, "--out", files["root"] / "never2")
     assert res.returncode == 2
     assert "pickled" in res.stderr and "Traceback" not in res.stderr
+    assert "[unsafe_or_malformed_file]" in res.stderr  # the error code is printed, not eaten
