@@ -26,7 +26,7 @@ def cli_errors(fn: Callable[P, R]) -> Callable[P, R]:
             return fn(*args, **kwargs)
         except GridplaceError as exc:
             err_console.print(
-                f"[bold red]error[/] \\[{exc.code}]: {escape(exc.message)}", highlight=False
+                f"[bold red]error[/] \\[{exc.code}]: {escape(exc.message)}", highlight=False, soft_wrap=True
             )
             raise typer.Exit(code=2) from exc
 
