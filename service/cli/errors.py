@@ -25,9 +25,8 @@ def cli_errors(fn: Callable[P, R]) -> Callable[P, R]:
         try:
             return fn(*args, **kwargs)
         except GridplaceError as exc:
-            err_console.print(
-                f"[bold red]error[/] \\[{exc.code}]: {escape(exc.message)}", highlight=False, soft_wrap=True
-            )
+            message = f"[bold red]error[/] \\[{exc.code}]: {escape(exc.message)}"
+            err_console.print(message, highlight=False, soft_wrap=True)
             raise typer.Exit(code=2) from exc
 
     return wrapper
