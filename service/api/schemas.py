@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, computed_field, model_validator
 
 from service.core.localization import LocalizeResult
 
@@ -131,6 +131,12 @@ class JobOut(_FromAttrs):
     version: int | None
     idempotency_key: str | None
     timings: dict[str, float]
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def job_id(self) -> str:
+        """The same as ``id``: the name the upload answer is documented with."""
+        return self.id
 
 
 class ErrorOut(BaseModel):
