@@ -181,12 +181,9 @@ class JobTable:
     ) -> bool:
         """Add finished chunks and stage timings atomically; False if the job finished."""
         with self.db.transaction() as conn:
-            row = conn.execute(
-                f"SELECT timings FROM jobs WHERE id = ? AND {_OPEN}", (job_id,)
-            ).fetchone()
-            if row is None:
+            merged = _open_job_timings(conn, job_id, timings)
+            if merged is None:
                 return False
-            merged = {**(loads(row["timings"]) or {}), **(timings or {})}
             conn.execute(
                 "UPDATE jobs SET chunks_done = chunks_done + ?, timings = ?, "
                 "stage = COALESCE(?, stage) WHERE id = ?",
@@ -199,12 +196,9 @@ class JobTable:
     ) -> bool:
         """Succeeded with ``version``; False if the job had already finished."""
         with self.db.transaction() as conn:
-            row = conn.execute(
-                f"SELECT timings FROM jobs WHERE id = ? AND {_OPEN}", (job_id,)
-            ).fetchone()
-            if row is None:
+            merged = _open_job_timings(conn, job_id, timings)
+            if merged is None:
                 return False
-            merged = {**(loads(row["timings"]) or {}), **(timings or {})}
             conn.execute(
                 "UPDATE jobs SET state = 'succeeded', stage = 'done', version = ?, "
                 "chunks_done = chunks_total, timings = ?, finished_at = ?, "
@@ -247,3 +241,13 @@ class JobTable:
                 (error[:4000], now, job_id),
             )
         return cur.rowcount == 1
+
+
+def _open_job_timings(
+    conn: sqlite3.Connection, job_id: str, timings: dict[str, float] | None
+) -> dict[str, float] | None:
+    """The job's timings merged with ``timings``; ``None`` if the job is unknown or finished."""
+    row = conn.execute(f"SELECT timings FROM jobs WHERE id = ? AND {_OPEN}", (job_id,)).fetchone()
+    if row is None:
+        return None
+    return {**(loads(row["timings"]) or {}), **(timings or {})}
