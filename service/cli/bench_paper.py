@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -69,6 +69,13 @@ def bench_paper(
     torch_threads: Annotated[
         int, typer.Option(help="CPU threads of the torch trainer (0 = torch's default)")
     ] = 1,
+    redraw: Annotated[
+        bool,
+        typer.Option(
+            "--redraw",
+            help="run nothing: re-make the PNGs and report.md in OUT from its results.json",
+        ),
+    ] = False,
     markdown: Annotated[
         Path | None,
         typer.Option(
@@ -81,10 +88,13 @@ def bench_paper(
     against exact NN and PQ — JSON, a Markdown report and PNG plots in OUT."""
     from service.errors import GridplaceError
     from service.harness import BenchConfig, load_dataset, run_paper, synthetic_dataset
-    from service.harness.report import render
-    from service.harness.runner import write_atomic
+    from service.harness.runner import redraw as redraw_results
 
     try:
+        if redraw:
+            results = redraw_results(out)
+            _finish(results, out, markdown)
+            return
         names = tuple(e.strip() for e in experiments.split(",") if e.strip())
         overrides = {"experiments": names, "trainer": trainer, "dtype": dtype, "seed": seed,
                      "torch_threads": torch_threads or None}  # fmt: skip
@@ -104,10 +114,17 @@ def bench_paper(
     except GridplaceError as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(2) from exc
+    _finish(results, out, markdown)
+
+
+def _finish(results: dict[str, Any], out: Path, markdown: Path | None) -> None:
+    from service.harness.report import render
+    from service.harness.runner import write_atomic
+
     console.print(Markdown(render(results)))
     if markdown is not None:
         prefix = Path(os.path.relpath(out.resolve(), markdown.resolve().parent)).as_posix()
         write_atomic(markdown, render(results, figure_prefix=f"{prefix}/"))
         console.print(f"wrote {markdown}")
-    console.print(f"wrote {out}/results.json, {out}/report.md and {len(results['figures'])} PNGs "
-                  f"in {results['elapsed_seconds'] / 60:.1f} min")  # fmt: skip
+    console.print(f"wrote {out}/results.json, {out}/report.md and {len(results['figures'])} PNGs; "
+                  f"the run took {results['elapsed_seconds'] / 60:.1f} min")  # fmt: skip

@@ -78,7 +78,7 @@ def plot_timing(res: dict[str, Any], meta: str, footer: str, path: Path) -> Path
 
 
 def plot_patterns(res: dict[str, Any], meta: str, footer: str, path: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(6.2, 3.9))
+    fig, ax = plt.subplots(figsize=(7.6, 4.2))
     tol = str(res["cross_tolerance"])
     for method in dict.fromkeys(r["method"] for r in res["rows"]):
         sel = [r for r in res["rows"] if r["method"] == method]
@@ -88,6 +88,7 @@ def plot_patterns(res: dict[str, Any], meta: str, footer: str, path: Path) -> Pa
                 label=f"{lab}: identical ±0")  # fmt: skip
         ax.plot(ks, [r["cross"][tol] for r in sel], "--s", color=COLORS.get(method),
                 label=f"{lab}: cross ±{tol}")  # fmt: skip
+    ax.set_xticks(sorted({r["k"] for r in res["rows"]}))
     ax.set_xlabel("number of patterns k (τ ≈ N^(1/k))")
     ax.set_ylabel("precision")
     ax.set_ylim(0, 1.02)
@@ -98,7 +99,7 @@ def plot_patterns(res: dict[str, Any], meta: str, footer: str, path: Path) -> Pa
 
 
 def plot_chunking(res: dict[str, Any], meta: str, footer: str, path: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(6.2, 3.9))
+    fig, ax = plt.subplots(figsize=(7.6, 4.2))
     tols = res["tolerances"]
     xs = [max(t, 0.5) for t in tols]
     for i, (name, m) in enumerate(res["models"].items()):

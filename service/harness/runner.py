@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from service.errors import InvalidInputError
 from service.harness import plots
 from service.harness.config import BenchConfig
 from service.harness.context import footer, run_context, set_torch_threads
@@ -25,18 +26,51 @@ RESULTS_JSON = "results.json"
 REPORT_MD = "report.md"
 
 
-def _meta(name: str, cfg: BenchConfig, ds: Dataset, res: dict[str, Any]) -> str:
-    common = f"trainer {cfg.trainer}, {cfg.dtype}"
+PLOTTERS: dict[str, Callable[[dict[str, Any], str, str, Path], Path]] = {
+    "storage": plots.plot_storage,
+    "timing": plots.plot_timing,
+    "patterns": plots.plot_patterns,
+    "chunking": plots.plot_chunking,
+    "retrieval": plots.plot_retrieval,
+}
+
+
+def _meta(name: str, cfg: dict[str, Any], dataset: dict[str, Any], res: dict[str, Any]) -> str:
+    """The parameters a figure states in its title (from the JSON config, so redraws match)."""
+    common = f"trainer {cfg['trainer']}, {cfg['dtype']}"
     if name == "storage":
-        return f"ρ∈{list(cfg.storage_rhos)}, k∈{list(cfg.storage_ks)}, {common}"
+        return f"ρ∈{list(cfg['storage_rhos'])}, k∈{list(cfg['storage_ks'])}, {common}"
     if name == "timing":
-        return f"k={cfg.timing_k}, gridplace ρ={cfg.timing_rho}, Yu ρ=1, {cfg.dtype}"
+        return f"k={cfg['timing_k']}, gridplace ρ={cfg['timing_rho']}, Yu ρ=1, {cfg['dtype']}"
     if name == "patterns":
-        return f"N={ds.n_frames}, gridplace ρ={cfg.pattern_rho}, Yu ρ=1, {common}"
+        return f"N={dataset['N']}, gridplace ρ={cfg['pattern_rho']}, Yu ρ=1, {common}"
     if name == "chunking":
-        return (f"N={res['dataset']['N']}, d={res['dataset']['d']}, {cfg.chunk_n_chunks} chunks, "
-                f"k={cfg.chunk_k}, ρ={cfg.chunk_rho}, {common}")  # fmt: skip
-    return f"N={ds.n_frames}, {common}"
+        return (f"N={res['dataset']['N']}, d={res['dataset']['d']}, {cfg['chunk_n_chunks']} "
+                f"chunks, k={cfg['chunk_k']}, ρ={cfg['chunk_rho']}, {common}")  # fmt: skip
+    return f"N={dataset['N']}, {common}"
+
+
+def draw(results: dict[str, Any], name: str, out: Path) -> str:
+    """Draw experiment ``name`` of ``results`` into ``out``; returns the file name."""
+    res = results["experiments"][name]
+    shown = res.get("dataset", results["dataset"])
+    fig = f"{name}.png"
+    meta = _meta(name, results["config"], results["dataset"], res)
+    PLOTTERS[name](res, meta, footer(results["context"], shown), out / fig)
+    return fig
+
+
+def redraw(out: Path) -> dict[str, Any]:
+    """Re-make the figures and ``report.md`` of an earlier run from its ``results.json``
+    (e.g. after a change of plot style); the figures keep that run's date and labels."""
+    path = out / RESULTS_JSON
+    if not path.is_file():
+        raise InvalidInputError(f"no {RESULTS_JSON} in {out} to redraw from")
+    results: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    for name in results["experiments"]:
+        results["figures"][name] = draw(results, name, out)
+    write_atomic(out / REPORT_MD, render(results))
+    return results
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -80,20 +114,12 @@ def run_paper(
         "chunking": lambda: run_chunking(cfg, report),
         "retrieval": lambda: run_retrieval(ds, cfg, report),
     }
-    plotters = {
-        "storage": plots.plot_storage, "timing": plots.plot_timing,
-        "patterns": plots.plot_patterns, "chunking": plots.plot_chunking,
-        "retrieval": plots.plot_retrieval,
-    }  # fmt: skip
     for name in cfg.experiments:
         t0 = time.perf_counter()
         res = runners[name]()
         results["experiments"][name] = res
         results["experiment_seconds"][name] = time.perf_counter() - t0
-        shown = res.get("dataset", ds.describe())
-        fig = f"{name}.png"
-        plotters[name](res, _meta(name, cfg, ds, res), footer(ctx, shown), out / fig)
-        results["figures"][name] = fig
+        results["figures"][name] = draw(results, name, out)
         results["elapsed_seconds"] = time.perf_counter() - started
         write_atomic(out / RESULTS_JSON, json.dumps(results, indent=1))  # partial results survive
     results["elapsed_seconds"] = time.perf_counter() - started

@@ -152,3 +152,19 @@ def test_presets_and_bad_experiment_names() -> None:
     assert quick.uses_torch() and not BenchConfig.quick(experiments=("patterns",)).uses_torch()
     with pytest.raises(InvalidParameterError, match="unknown experiments"):
         BenchConfig.quick(experiments=("storage", "vibes"))
+
+
+def test_redraw_remakes_figures_and_report_from_the_json(
+    run: tuple[dict, Path], tmp_path: Path
+) -> None:
+    _, out = run
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    (copy / "results.json").write_bytes((out / "results.json").read_bytes())
+    result = CliRunner().invoke(app, ["bench", "paper", "--redraw", "--out", str(copy)])
+    assert result.exit_code == 0, result.output
+    for name in ("storage", "timing", "patterns", "chunking", "retrieval"):
+        _assert_png(copy / f"{name}.png")
+    assert (copy / "report.md").read_text() == (out / "report.md").read_text()
+    missing = CliRunner().invoke(app, ["bench", "paper", "--redraw", "--out", str(tmp_path)])
+    assert missing.exit_code == 2 and "no results.json" in missing.output
