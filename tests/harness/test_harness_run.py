@@ -168,3 +168,14 @@ def test_redraw_remakes_figures_and_report_from_the_json(
     assert (copy / "report.md").read_text() == (out / "report.md").read_text()
     missing = CliRunner().invoke(app, ["bench", "paper", "--redraw", "--out", str(tmp_path)])
     assert missing.exit_code == 2 and "no results.json" in missing.output
+
+
+def test_retrieval_runs_without_faiss(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    import service.harness.exp_retrieval as retrieval
+
+    monkeypatch.setattr(retrieval, "faiss_available", lambda: False)
+    cfg = tiny_config(experiments=("retrieval",))
+    results = run_paper(synthetic_dataset(300, 32, seed=1), tmp_path, cfg)
+    rows = results["experiments"]["retrieval"]["rows"]
+    assert {r["method"] for r in rows} == {"gridplace", "exact_nn"}
+    assert "faiss is not installed, so PQ is absent" in (tmp_path / "report.md").read_text()
