@@ -7,7 +7,7 @@ queries of the long chunked route) and takes much longer.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from service.errors import InvalidParameterError
@@ -64,7 +64,6 @@ class BenchConfig:
     retrieval_pq_m: tuple[int, ...] = (16, 64)
     retrieval_tolerances: tuple[int, ...] = (0, 1, 5, 10, 25)
     tolerances: tuple[int, ...] = (0, 1, 2, 5, 10, 25)
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         unknown = set(self.experiments) - set(EXPERIMENTS)

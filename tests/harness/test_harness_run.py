@@ -179,3 +179,15 @@ def test_retrieval_runs_without_faiss(monkeypatch: pytest.MonkeyPatch, tmp_path:
     rows = results["experiments"]["retrieval"]["rows"]
     assert {r["method"] for r in rows} == {"gridplace", "exact_nn"}
     assert "faiss is not installed, so PQ is absent" in (tmp_path / "report.md").read_text()
+
+
+def test_cli_without_a_dataset_uses_a_labelled_synthetic_route(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["bench", "paper", "--out", str(out), "--experiments",
+                                      "patterns", "--synthetic-frames", "200",
+                                      "--synthetic-features", "16"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "SYNTHETIC" in result.output
+    results = json.loads((out / "results.json").read_text())
+    assert results["dataset"]["synthetic"] is True and results["dataset"]["N"] == 200
+    assert (out / "report.md").read_text().count("SYNTHETIC") >= 2
