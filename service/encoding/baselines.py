@@ -172,8 +172,14 @@ class ExactNN(PlaceRecognizer):
         X = check_descriptors(X, min_rows=2, what="training descriptors")
         self.normalizer_ = Normalizer.fit(X)
         self.reference_ = self._prepare(self.normalizer_.transform(X)).astype(self.dtype)
+        self._cache_search_arrays()
         self._set_fitted(*X.shape)
         return self
+
+    def _cache_search_arrays(self) -> None:
+        """float32 reference and its squared norms, computed once (not per query)."""
+        self._ref32 = np.ascontiguousarray(self.reference_, dtype=np.float32)
+        self._ref_sq = np.einsum("ij,ij->i", self._ref32, self._ref32)
 
     def _prepare(self, Xn: np.ndarray) -> np.ndarray:
         if self.metric == "cosine":
@@ -182,8 +188,7 @@ class ExactNN(PlaceRecognizer):
 
     def localize(self, X: Any) -> Localization:
         Qn = self._prepare(self.normalizer_.transform(self._check_query(X))).astype(np.float32)
-        R = self.reference_.astype(np.float32)
-        r2 = np.einsum("ij,ij->i", R, R)
+        R, r2 = self._ref32, self._ref_sq
         index = np.empty(Qn.shape[0], dtype=np.int64)
         conf = np.empty(Qn.shape[0])
         frames = np.arange(R.shape[0])
@@ -217,5 +222,6 @@ class ExactNN(PlaceRecognizer):
         model = cls(**params)
         model.reference_ = arrays["reference"]
         model.normalizer_ = Normalizer.from_arrays(arrays, "norm")
+        model._cache_search_arrays()
         model._set_fitted(int(meta["n_frames"]), int(meta["n_features"]))
         return model

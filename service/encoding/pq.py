@@ -82,7 +82,7 @@ class PQIndex(PlaceRecognizer):
         d2 = np.sqrt(np.maximum(np.where(far, dist, np.inf).min(axis=1), 0))
         with np.errstate(divide="ignore", invalid="ignore"):
             conf = np.where(np.isfinite(d2) & (d2 > 0), 1.0 - d1 / d2, 0.0)
-        conf = np.clip(conf, 0.0, 1.0)
+        conf = np.clip(conf.astype(np.float64), 0.0, 1.0)
         return Localization(best, conf, np.zeros_like(best), np.log(np.maximum(conf, 1e-300)))
 
     def footprint(self) -> Footprint:

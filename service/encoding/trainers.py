@@ -139,14 +139,29 @@ def _solve_psd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def _fit_torch(
     X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None, threads: int = 1
 ) -> LinearModel:
-    """One-vs-rest logistic loss for all classes at once, full-batch L-BFGS."""
-    del threads  # torch manages its own intra-op threads
+    """One-vs-rest logistic loss for all classes at once, full-batch L-BFGS.
+
+    On the CPU it uses ``threads`` intra-op threads (the estimator's ``n_jobs``), restored
+    afterwards: torch's default of every core oversubscribes a machine shared with chunk
+    processes or other work, which slowed a seconds-long fit to minutes here.
+    """
     try:
         import torch
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise InvalidParameterError(
             "trainer 'torch' needs PyTorch: pip install 'gridplace[torch]'"
         ) from exc
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        return _lbfgs_torch(torch, X, y, n, C, seed)
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _lbfgs_torch(
+    torch: Any, X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None
+) -> LinearModel:
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     gen = torch.Generator(device="cpu")
     gen.manual_seed(0 if seed is None else int(seed))
