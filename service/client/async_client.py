@@ -1,0 +1,139 @@
+"""``AsyncGridplaceClient``: :class:`~service.client.GridplaceClient` for asyncio code.
+
+The same calls (built once in :mod:`service.client.calls`), awaited::
+
+    async with AsyncGridplaceClient(url) as gp:
+        hits = await asyncio.gather(*(gp.localize("nordland", q) for q in queries))
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Sequence
+from types import TracebackType
+from typing import Any, TypeVar
+
+import httpx
+import numpy as np
+from numpy.typing import ArrayLike
+
+from service.client import calls
+from service.client.calls import Call, ImageSource, RouteSource
+from service.client.client import JobCallback, TimeoutTypes, answer, auth_headers, resolve
+from service.client.errors import JobTimeoutError, transport_error
+from service.client.models import (
+    BatchLocalization,
+    Health,
+    Job,
+    Localization,
+    MapDetail,
+    MapSummary,
+    Readiness,
+    TrainingOptions,
+    Version,
+)
+
+T = TypeVar("T")
+
+
+class AsyncGridplaceClient:
+    """Same arguments and methods as :class:`~service.client.GridplaceClient`, awaited."""
+
+    def __init__(
+        self,
+        base_url: str | None = None,
+        *,
+        token: str | None = None,
+        timeout: TimeoutTypes = 30.0,
+        upload_timeout: TimeoutTypes = 600.0,
+        transport: httpx.AsyncBaseTransport | None = None,
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        self.base_url, self.token = resolve(base_url, token)
+        self.upload_timeout = upload_timeout
+        self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, transport=transport,
+                                       headers={"User-Agent": "gridplace-client", **(headers or {})})  # fmt: skip
+
+    async def _send(self, call: Call[T], timeout: Any = httpx.USE_CLIENT_DEFAULT) -> T:
+        kwargs = {**call.kwargs, "headers": auth_headers(call, self.token)}
+        try:
+            response = await self._http.request(call.method, call.path, timeout=timeout, **kwargs)
+        except httpx.TransportError as exc:
+            raise transport_error(exc, self.base_url) from exc
+        finally:
+            call.close()
+        return answer(call, response)
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def __aenter__(self) -> AsyncGridplaceClient:
+        return self
+
+    async def __aexit__(self, et: type[BaseException] | None, e: BaseException | None,
+                        tb: TracebackType | None) -> None:  # fmt: skip
+        await self.aclose()
+
+    async def health(self) -> Health:
+        return await self._send(calls.health())
+
+    async def ready(self) -> Readiness:
+        return await self._send(calls.ready())
+
+    async def localize(self, map: str, descriptor: ArrayLike | None = None, *,
+                       image: ImageSource | None = None) -> Localization:  # fmt: skip
+        return await self._send(calls.localize(map, descriptor, image))
+
+    async def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
+        return await self._send(calls.localize_batch(map, descriptors))
+
+    async def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
+        return await self._send(calls.localize_images(map, images))
+
+    async def upload_route(self, map: str, route: RouteSource, options: TrainingOptions | None = None,
+                           *, idempotency_key: str | None = None, filename: str | None = None,
+                           **params: Any) -> Job:  # fmt: skip
+        opts = calls.options_of(options, params)
+        if not isinstance(route, (bytes, np.ndarray)):  # read off the event loop
+            route, filename = await asyncio.to_thread(calls.read_route_file, route, filename)
+        return await self._send(calls.upload_route(map, route, opts, idempotency_key, filename),
+                                timeout=self.upload_timeout)  # fmt: skip
+
+    async def get_job(self, job_id: str) -> Job:
+        return await self._send(calls.get_job(job_id))
+
+    async def wait_for_job(self, job_id: str, timeout: float = 600.0, poll_interval: float = 0.25,
+                           on_update: JobCallback | None = None) -> Job:  # fmt: skip
+        deadline = time.monotonic() + timeout
+        while True:
+            job = await self.get_job(job_id)
+            if on_update is not None:
+                on_update(job)
+            if job.done:
+                return job
+            if time.monotonic() >= deadline:
+                raise JobTimeoutError(f"job {job_id} still {job.state} ({job.stage}) after {timeout:.0f}s",
+                                      job_id=job_id)  # fmt: skip
+            await asyncio.sleep(poll_interval)
+
+    async def list_maps(self) -> list[MapSummary]:
+        return await self._send(calls.list_maps())
+
+    async def get_map(self, name: str) -> MapDetail:
+        return await self._send(calls.get_map(name))
+
+    async def list_versions(self, name: str) -> list[Version]:
+        return await self._send(calls.list_versions(name))
+
+    async def get_version(self, name: str, version: int) -> Version:
+        return await self._send(calls.get_version(name, version))
+
+    async def activate(self, name: str, version: int) -> Version:
+        return await self._send(calls.activate(name, version))
+
+    async def deactivate(self, name: str) -> MapSummary:
+        return await self._send(calls.deactivate(name))
+
+    async def delete_version(self, name: str, version: int) -> None:
+        await self._send(calls.delete_version(name, version))

@@ -1,0 +1,225 @@
+"""Every REST call as data (method, path, body, how to read the answer).
+
+The sync and async clients only differ in how they send a :class:`Call`; what goes over the
+wire and how the answer is read is written once, here.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, Generic, TypeVar
+from urllib.parse import quote
+
+import httpx
+import numpy as np
+from numpy.typing import ArrayLike
+from pydantic import TypeAdapter, ValidationError
+
+from service.client.errors import UnexpectedResponseError
+from service.client.models import (
+    BatchLocalization,
+    Health,
+    Job,
+    Localization,
+    MapDetail,
+    MapSummary,
+    Readiness,
+    TrainingOptions,
+    Version,
+)
+from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
+
+T = TypeVar("T")
+DEFAULT_URL = "http://127.0.0.1:8080"
+RouteSource = str | os.PathLike[str] | np.ndarray | bytes
+ImageSource = str | os.PathLike[str] | bytes
+
+
+@dataclass
+class Call(Generic[T]):
+    """One HTTP request and the reader of its successful answer."""
+
+    method: str
+    path: str
+    read: Callable[[httpx.Response], T]
+    admin: bool = False
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    also_ok: frozenset[int] = frozenset()  # non-2xx statuses that still carry an answer
+    files: list[IO[bytes]] = field(default_factory=list)  # closed once sent
+
+    def close(self) -> None:
+        for fh in self.files:
+            fh.close()
+
+
+def _reader(kind: Any) -> Callable[[httpx.Response], Any]:
+    adapter: TypeAdapter[Any] = TypeAdapter(kind)
+
+    def read(response: httpx.Response) -> Any:
+        try:
+            return adapter.validate_json(response.content)
+        except ValidationError as exc:
+            raise UnexpectedResponseError(
+                f"{response.request.method} {response.request.url.path} answered "
+                f"{response.status_code} with a body that is not a {kind}: {exc.errors()[:2]}"
+            ) from exc
+
+    return read
+
+
+def _nothing(_: httpx.Response) -> None:
+    return None
+
+
+def _seg(text: str) -> str:
+    return quote(str(text), safe="")
+
+
+def as_float32_rows(X: ArrayLike, what: str) -> np.ndarray:
+    """``X`` as a C-contiguous little-endian float32 matrix (one row per descriptor)."""
+    try:
+        arr = np.asarray(X, dtype="<f4")
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{what} is not numeric: {exc}") from exc
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2:
+        raise InvalidInputError(f"{what} must be one descriptor or a 2-D matrix, got {arr.ndim}-D")
+    if arr.size == 0:
+        raise EmptyInputError(f"{what} is empty")
+    return np.ascontiguousarray(arr)
+
+
+def _read_image(image: ImageSource) -> tuple[str, bytes]:
+    if isinstance(image, bytes):
+        return "image", image
+    path = Path(image)
+    return path.name, path.read_bytes()
+
+
+def _npy_bytes(X: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, X, allow_pickle=False)
+    return buf.getvalue()
+
+
+def read_route_file(route: str | os.PathLike[str], filename: str | None) -> tuple[bytes, str]:
+    """A route file's bytes and upload name (clear error when it is missing)."""
+    path = Path(route)
+    if not path.is_file():
+        raise InvalidInputError(f"route file not found: {path}", path=str(path))
+    return path.read_bytes(), filename or path.name
+
+
+def options_of(options: TrainingOptions | None, params: dict[str, Any]) -> TrainingOptions:
+    """Merge keyword parameters into the options, refusing unknown names and bad values."""
+    merged = {**(options.model_dump(exclude_none=True) if options else {}), **params}
+    try:
+        return TrainingOptions(**merged)
+    except ValidationError as exc:
+        msgs = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
+        raise InvalidParameterError(f"invalid training parameters: {msgs}") from exc
+
+
+# -- the calls ------------------------------------------------------------------------------
+def health() -> Call[Health]:
+    return Call("GET", "/healthz", _reader(Health))
+
+
+def ready() -> Call[Readiness]:
+    return Call("GET", "/readyz", _reader(Readiness), also_ok=frozenset({503}))
+
+
+def localize(map_name: str, descriptor: ArrayLike | None, image: ImageSource | None) -> Call[Localization]:
+    if (descriptor is None) == (image is None):
+        raise InvalidInputError("localize needs exactly one of descriptor or image")
+    read = _reader(Localization)
+    if image is not None:
+        name, data = _read_image(image)
+        return Call("POST", "/v1/localize", read, kwargs={
+            "data": {"map": map_name}, "files": {"image": (name, data)}})  # fmt: skip
+    row = as_float32_rows(descriptor, "descriptor")
+    if row.shape[0] != 1:
+        raise InvalidInputError(f"localize takes one descriptor ({row.shape[0]} rows given); "
+                                "use localize_batch")  # fmt: skip
+    b64 = base64.b64encode(row.tobytes()).decode("ascii")
+    return Call("POST", "/v1/localize", read, kwargs={"json": {"map": map_name, "descriptor_b64": b64}})
+
+
+def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalization]:
+    X = as_float32_rows(descriptors, "descriptors")
+    return Call("POST", "/v1/localize/batch", _reader(BatchLocalization), kwargs={
+        "params": {"map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
+        "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip
+
+
+def localize_images(map_name: str, images: Sequence[ImageSource]) -> Call[BatchLocalization]:
+    if not images:
+        raise EmptyInputError("localize_images needs at least one image")
+    files = [("images", _read_image(img)) for img in images]
+    return Call("POST", "/v1/localize/batch", _reader(BatchLocalization),
+                kwargs={"data": {"map": map_name}, "files": files})  # fmt: skip
+
+
+def upload_route(
+    map_name: str,
+    route: RouteSource,
+    options: TrainingOptions,
+    idempotency_key: str | None,
+    filename: str | None,
+) -> Call[Job]:
+    opened: list[IO[bytes]] = []
+    body: bytes | IO[bytes]
+    if isinstance(route, np.ndarray):
+        body, name = _npy_bytes(route), filename or "route.npy"
+    elif isinstance(route, bytes):
+        body, name = route, filename or "route.npy"
+    else:
+        path = Path(route)
+        if not path.is_file():
+            raise InvalidInputError(f"route file not found: {path}", path=str(path))
+        body = path.open("rb")
+        opened.append(body)
+        name = filename or path.name
+    headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
+    return Call("POST", f"/v1/maps/{_seg(map_name)}/routes", _reader(Job), admin=True, kwargs={
+        "files": {"file": (name, body)}, "data": options.form(), "headers": headers},
+        files=opened)  # fmt: skip
+
+
+def get_job(job_id: str) -> Call[Job]:
+    return Call("GET", f"/v1/jobs/{_seg(job_id)}", _reader(Job), admin=True)
+
+
+def list_maps() -> Call[list[MapSummary]]:
+    return Call("GET", "/v1/maps", _reader(list[MapSummary]), admin=True)
+
+
+def get_map(name: str) -> Call[MapDetail]:
+    return Call("GET", f"/v1/maps/{_seg(name)}", _reader(MapDetail), admin=True)
+
+
+def list_versions(name: str) -> Call[list[Version]]:
+    return Call("GET", f"/v1/maps/{_seg(name)}/versions", _reader(list[Version]), admin=True)
+
+
+def get_version(name: str, version: int) -> Call[Version]:
+    return Call("GET", f"/v1/maps/{_seg(name)}/versions/{int(version)}", _reader(Version), admin=True)
+
+
+def activate(name: str, version: int) -> Call[Version]:
+    path = f"/v1/maps/{_seg(name)}/versions/{int(version)}/activate"
+    return Call("POST", path, _reader(Version), admin=True)
+
+
+def deactivate(name: str) -> Call[MapSummary]:
+    return Call("POST", f"/v1/maps/{_seg(name)}/deactivate", _reader(MapSummary), admin=True)
+
+
+def delete_version(name: str, version: int) -> Call[None]:
+    return Call("DELETE", f"/v1/maps/{_seg(name)}/versions/{int(version)}", _nothing, admin=True)
