@@ -9,6 +9,7 @@ from service.cli import demo_commands
 from service.cli import model_commands
 from service.cli import extract_commands, serve_commands
 from service.cli import worker_commands
+from service.cli import client_commands
 
 app = typer.Typer(
     name="gridplace",
@@ -21,6 +22,7 @@ demo_commands.register(app)
 serve_commands.register(app)
 extract_commands.register(app)
 worker_commands.register(app)
+client_commands.register(app)
 app.add_typer(bench_commands.app, name="bench")
 
 

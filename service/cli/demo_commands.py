@@ -1,24 +1,170 @@
-"""``gridplace demo``: the main job end to end on the embedded default (no Redis, no Docker)."""
+"""``gridplace demo``: the main job end to end on the embedded default (no Redis, no Docker).
+
+Train on the Nordland route in ``../shared/data`` (or a clearly labelled SYNTHETIC route),
+save and reload the artifact, compare with exact nearest neighbour on the winter traversal;
+then (``--serve``, the default) publish the model as map ``demo`` into a data dir, start
+``gridplace serve`` on it and print copy-paste ``curl``/``grpcurl``/``gridplace client`` calls.
+"""
 
 from __future__ import annotations
 
+import base64
 import json
+import os
+import secrets
+import socket
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
 from rich.console import Console
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from service.bench.data import nordland
+from service.bench.data import NORDLAND_SHAPE, nordland, shared_data_dir
+from service.cli.demo_examples import print_examples
 from service.cli.errors import cli_errors
-from service.encoding import ExactNN, PhaseEncoder, load_model, save_model
+from service.encoding import ExactNN, ModelParams, build_model, load_model, save_model
+from service.encoding.base import PlaceRecognizer
 from service.encoding.evaluation import evaluate
 from service.encoding.synthetic import smooth_route
+from service.errors import InvalidParameterError, UnavailableError
 
 console = Console()
+DEMO_MAP = "demo"
+NORDLAND_PATCH = 16
+
+
+@dataclass(frozen=True)
+class DemoData:
+    reference: np.ndarray
+    query: np.ndarray
+    label: str
+    extractor: dict[str, Any] | None  # how images become these descriptors (None: synthetic)
+    query_image: Path | None  # the PNG of query row ``probe`` (Nordland only)
+    probe: int
+
+
+def _data(frames: int | None, synthetic: bool) -> DemoData:
+    route = None if synthetic else nordland(limit=frames, patch=NORDLAND_PATCH)
+    if route is None:
+        n = frames or 3000
+        synth = smooth_route(n, 512, seed=0)
+        why = "--synthetic" if synthetic else "no Nordland data in ../shared/data"
+        label = f"SYNTHETIC smooth random route, {n} frames, d=512 ({why})"
+        return DemoData(synth.reference, synth.query, label, None, None, n // 3)
+    probe = route.reference.shape[0] // 3
+    root = shared_data_dir()
+    png = root / "nordland-64x32" / "query" / f"images-{(probe + 1) * 10:05d}.png" if root else None
+    height, width = NORDLAND_SHAPE
+    ext = {"kind": "patchnorm", "width": width, "height": height, "patch": NORDLAND_PATCH}
+    return DemoData(route.reference, route.query, route.label, ext,
+                    png if png is not None and png.is_file() else None, probe)  # fmt: skip
+
+
+def _fit(params: ModelParams, X: np.ndarray) -> tuple[PlaceRecognizer, float]:
+    model = build_model(params)
+    columns = (SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True) as bar:
+        bar.add_task(f"training {params.trainer} phase encoders on {X.shape[0]} frames", total=None)
+        start = time.perf_counter()
+        model.fit(X)
+    return model, time.perf_counter() - start
+
+
+def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any]]:
+    nn = ExactNN().fit(data.reference)
+    table = Table(title=f"gridplace demo ({data.label})")
+    for col in ("model", "condition", "P@0", "P@1", "P@5", "storage bytes", "µs/query"):
+        table.add_column(col)
+    results = {}
+    for name, m in (("gridplace", model), ("exact NN", nn)):
+        for cond, Q in (("identical", data.reference), ("cross-season", data.query)):
+            r = evaluate(m, Q, tolerance=5)
+            results[f"{name}/{cond}"] = r
+            pa = r["precision_at"]
+            table.add_row(name, cond, f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
+                          str(r["footprint_bytes"]),
+                          f"{r['query_seconds_per_descriptor'] * 1e6:.0f}")  # fmt: skip
+    console.print(table)
+    return results
+
+
+def _port(wanted: int) -> int:
+    """``wanted`` if it is free on 127.0.0.1, else any free port (0 = any)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", wanted))
+        except OSError:
+            s.close()
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as t:
+                t.bind(("127.0.0.1", 0))
+                chosen = int(t.getsockname()[1])
+            console.print(f"[yellow]port {wanted} is in use; using {chosen}[/]")
+            return chosen
+        return int(s.getsockname()[1])
+
+
+def _publish(data_dir: Path, model: PlaceRecognizer, params: ModelParams, data: DemoData,
+             metrics: dict[str, Any]) -> int:  # fmt: skip
+    from service.registry import Registry
+
+    info = Registry(data_dir).publish(
+        DEMO_MAP, model, params=params.model_dump(mode="json"), extractor=data.extractor,
+        metrics=metrics, activate=True,
+    )  # fmt: skip
+    return info.version
+
+
+def _serve(data_dir: Path, port: int, grpc_port: int, model: PlaceRecognizer, params: ModelParams,
+           data: DemoData, metrics: dict[str, Any]) -> None:  # fmt: skip
+    from service.api.process import ServerProcess
+    from service.client import GridplaceClient
+
+    data_dir = data_dir.resolve()
+    version = _publish(data_dir, model, params, data, metrics)
+    console.print(f"published map [bold]{DEMO_MAP}[/] version {version} into {data_dir}")
+    token = os.environ.get("GRIDPLACE_ADMIN_TOKEN") or secrets.token_hex(16)
+    port = _port(port)
+    grpc_port = _port(grpc_port) if grpc_port else 0
+    env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(grpc_port),
+           "GRIDPLACE_LOG_LEVEL": "info", "GRIDPLACE_TRAIN_WORKERS": "1"}  # fmt: skip
+    server = ServerProcess(data_dir, env=env, port=port, log_path=data_dir / "demo-server.log")
+    with console.status(f"starting gridplace serve on {server.url}"):
+        server.start()
+    try:
+        with GridplaceClient(server.url, token=token) as gp:
+            gp.wait_until_ready(timeout=120)
+            probe = data.query[data.probe]
+            hit = gp.localize(DEMO_MAP, probe)
+        console.print(f"server check: query frame {data.probe} (cross-season) → frame {hit.index} "
+                      f"(confidence {hit.confidence:.2f}, version {hit.version})", highlight=False)  # fmt: skip
+        request = data_dir / "demo-localize.json"
+        b64 = base64.b64encode(np.ascontiguousarray(probe, dtype="<f4").tobytes()).decode("ascii")
+        request.write_text(json.dumps({"map": DEMO_MAP, "descriptor_b64": b64}))
+        sample = np.ascontiguousarray(data.query[:100], dtype="<f4")
+        np.save(data_dir / "demo-queries.npy", sample, allow_pickle=False)
+        (data_dir / "demo-queries.f32").write_bytes(sample.tobytes())
+        print_examples(console, server.url, token, grpc_port if _listening(grpc_port) else 0,
+                       data_dir, data.probe, probe, data.query_image, server.log_path)  # fmt: skip
+        while server.proc is not None and server.proc.poll() is None:
+            time.sleep(0.5)
+        raise UnavailableError(f"gridplace serve exited unexpectedly: {server.log()}")
+    except KeyboardInterrupt:
+        console.print("\nstopping the server…")
+    finally:
+        server.stop()
+
+
+def _listening(port: int) -> bool:
+    if not port:
+        return False
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(1.0)
+        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 @cli_errors
@@ -29,41 +175,50 @@ def demo(
     trainer: Annotated[str, typer.Option(help="logreg | svm | ridge | torch")] = "ridge",
     patterns: Annotated[int, typer.Option("--patterns", "-k")] = 2,
     rho: Annotated[float, typer.Option()] = 0.5,
+    frames: Annotated[
+        int | None, typer.Option(help="use only the first N frames of the route")
+    ] = None,
+    synthetic: Annotated[
+        bool, typer.Option("--synthetic", help="a SYNTHETIC route even if Nordland is present")
+    ] = False,
+    serve: Annotated[
+        bool, typer.Option("--serve/--no-serve", help="then serve the model (Ctrl-C stops)")
+    ] = True,
+    data_dir: Annotated[Path, typer.Option(help="registry the server serves (map 'demo')")] = Path(
+        "gridplace-data"
+    ),
+    port: Annotated[int, typer.Option(help="REST port (another free one if taken)")] = 8080,
+    grpc_port: Annotated[int, typer.Option(help="gRPC port, 0 = off")] = 50051,
 ) -> None:
-    """Train on the Nordland route (summer), save, reload, and localize winter queries."""
-    route = nordland()
-    if route is None:
-        synth = smooth_route(3000, 512, seed=0)
-        reference, query, label = synth.reference, synth.query, synth.label
-    else:
-        reference, query, label = route.reference, route.query, route.label
-    console.print(f"[bold]dataset[/]: {label}; N={reference.shape[0]}, d={reference.shape[1]}")
-    start = time.perf_counter()
-    model = PhaseEncoder(n_patterns=patterns, rho=rho, trainer=trainer).fit(reference)
-    train_s = time.perf_counter() - start
+    """Train on the Nordland route (summer), save, reload, and localize winter queries; then
+    serve the model as map 'demo' and print curl / grpcurl / gridplace client examples."""
+    if frames is not None and frames < 2:
+        raise InvalidParameterError(f"--frames must be at least 2, got {frames}")
+    params = ModelParams.parse(n_patterns=patterns, rho=rho, trainer=trainer)
+    data = _data(frames, synthetic)
+    console.print(
+        f"[bold]dataset[/]: {data.label}; N={data.reference.shape[0]}, d={data.reference.shape[1]}"
+    )
+    model, train_s = _fit(params, data.reference)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path = out / f"phase-{trainer}-{stamp}"
-    save_model(model, path, extra={"train_seconds": train_s, "dataset": label})
+    save_model(model, path, extra={"train_seconds": train_s, "dataset": data.label})
     model = load_model(path)  # answer from the verified artifact, as the server does
-    nn = ExactNN().fit(reference)
-    table = Table(title=f"gridplace demo ({label})")
-    for col in ("model", "condition", "P@0", "P@1", "P@5", "storage bytes", "µs/query"):
-        table.add_column(col)
-    results = {}
-    for name, m in (("gridplace", model), ("exact NN", nn)):
-        for cond, Q in (("identical", reference), ("cross-season", query)):
-            r = evaluate(m, Q, tolerance=5)
-            results[f"{name}/{cond}"] = r
-            pa = r["precision_at"]
-            table.add_row(name, cond, f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
-                          str(r["footprint_bytes"]),
-                          f"{r['query_seconds_per_descriptor'] * 1e6:.0f}")  # fmt: skip
-    console.print(table)
-    console.print(f"trained in {train_s:.1f}s (periods {list(model.periods_)}); artifact: {path}")
+    results = _evaluate(model, data)
+    console.print(
+        f"trained in {train_s:.1f}s (periods {list(getattr(model, 'periods_', []))}); artifact: {path}"
+    )
     (path.parent / f"{path.name}.results.json").write_text(
         json.dumps({k: {kk: v for kk, v in r.items() if kk != "footprint"} for k, r in results.items()},
                    indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o))
-    )
+    )  # fmt: skip
+    if serve:
+        cross = results["gridplace/cross-season"]["precision_at"]
+        same = results["gridplace/identical"]["precision_at"]
+        metrics = {"dataset": data.label, "train_seconds": train_s,
+                   "train_precision_at_0": same["0"], "train_precision_at_5": same["5"],
+                   "cross_season_precision_at_0": cross["0"], "cross_season_precision_at_5": cross["5"]}  # fmt: skip
+        _serve(data_dir, port, grpc_port, model, params, data, metrics)
 
 
 def register(app: typer.Typer) -> None:

@@ -122,7 +122,9 @@ def options_of(options: TrainingOptions | None, params: dict[str, Any]) -> Train
     try:
         return TrainingOptions(**merged)
     except ValidationError as exc:
-        msgs = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
+        msgs = "; ".join(
+            f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors()
+        )
         raise InvalidParameterError(f"invalid training parameters: {msgs}") from exc
 
 
@@ -135,7 +137,9 @@ def ready() -> Call[Readiness]:
     return Call("GET", "/readyz", _reader(Readiness), also_ok=frozenset({503}))
 
 
-def localize(map_name: str, descriptor: ArrayLike | None, image: ImageSource | None) -> Call[Localization]:
+def localize(
+    map_name: str, descriptor: ArrayLike | None, image: ImageSource | None
+) -> Call[Localization]:
     if (descriptor is None) == (image is None):
         raise InvalidInputError("localize needs exactly one of descriptor or image")
     read = _reader(Localization)
@@ -143,12 +147,15 @@ def localize(map_name: str, descriptor: ArrayLike | None, image: ImageSource | N
         name, data = _read_image(image)
         return Call("POST", "/v1/localize", read, kwargs={
             "data": {"map": map_name}, "files": {"image": (name, data)}})  # fmt: skip
+    assert descriptor is not None
     row = as_float32_rows(descriptor, "descriptor")
     if row.shape[0] != 1:
         raise InvalidInputError(f"localize takes one descriptor ({row.shape[0]} rows given); "
                                 "use localize_batch")  # fmt: skip
     b64 = base64.b64encode(row.tobytes()).decode("ascii")
-    return Call("POST", "/v1/localize", read, kwargs={"json": {"map": map_name, "descriptor_b64": b64}})
+    return Call(
+        "POST", "/v1/localize", read, kwargs={"json": {"map": map_name, "descriptor_b64": b64}}
+    )
 
 
 def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalization]:
@@ -209,7 +216,9 @@ def list_versions(name: str) -> Call[list[Version]]:
 
 
 def get_version(name: str, version: int) -> Call[Version]:
-    return Call("GET", f"/v1/maps/{_seg(name)}/versions/{int(version)}", _reader(Version), admin=True)
+    return Call(
+        "GET", f"/v1/maps/{_seg(name)}/versions/{int(version)}", _reader(Version), admin=True
+    )
 
 
 def activate(name: str, version: int) -> Call[Version]:

@@ -19,7 +19,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from types import TracebackType
-from typing import Any, TypeVar
+from typing import Any, Self, TypeVar
 
 import httpx
 from numpy.typing import ArrayLike
@@ -102,7 +102,7 @@ class GridplaceClient:
     def close(self) -> None:
         self._http.close()
 
-    def __enter__(self) -> GridplaceClient:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, et: type[BaseException] | None, e: BaseException | None,

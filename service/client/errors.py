@@ -87,7 +87,8 @@ def _all_subclasses(cls: type[GridplaceError]) -> list[type[GridplaceError]]:
 
 def error_class(code: str | None, status: int) -> type[GridplaceError]:
     """The class for a server error ``code`` (same code and HTTP status), else by ``status``."""
-    candidates = [c for c in [GridplaceError, *_all_subclasses(GridplaceError)] if c.code == code]
+    known: list[type[GridplaceError]] = [GridplaceError, *_all_subclasses(GridplaceError)]
+    candidates = [c for c in known if c.code == code]
     for cls in candidates:
         if cls.http_status == status:
             return cls
@@ -111,7 +112,8 @@ def error_from_response(response: httpx.Response) -> GridplaceError:
     if isinstance(body, dict) and isinstance(body.get("error"), str):
         code: str = body["error"]
         message = str(body.get("message") or code)
-        details = body.get("details") if isinstance(body.get("details"), dict) else {}
+        raw = body.get("details")
+        details: dict[str, Any] = dict(raw) if isinstance(raw, dict) else {}
         cls = error_class(code, status)
         exc = cls(message, **details)
         if exc.code != code:  # a code this client does not know: keep the server's word

@@ -1,0 +1,380 @@
+"""``gridplace client …``: talk to a running gridplace server through :mod:`service.client`.
+
+The server is ``--url`` or ``GRIDPLACE_URL`` (default http://127.0.0.1:8080); admin calls send
+``GRIDPLACE_ADMIN_TOKEN`` (or ``--token``, which other users can see in ``ps``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from pydantic import BaseModel
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
+from rich.table import Table
+
+from service.cli.errors import cli_errors
+from service.client import GridplaceClient, Job, JobFailedError
+from service.client.calls import options_of
+from service.errors import InvalidInputError
+
+app = typer.Typer(help="Talk to a running gridplace server (REST).", no_args_is_help=True)
+console = Console()
+
+Url = Annotated[str | None, typer.Option("--url", envvar="GRIDPLACE_URL", show_envvar=True,
+                                         help="server URL (default http://127.0.0.1:8080)")]  # fmt: skip
+Token = Annotated[str | None, typer.Option("--token", envvar="GRIDPLACE_ADMIN_TOKEN", show_envvar=True,
+                                           show_default=False, help="admin bearer token")]  # fmt: skip
+Timeout = Annotated[float, typer.Option(help="seconds per request")]
+AsJson = Annotated[bool, typer.Option("--json", help="print the server's answer as JSON")]
+
+
+@contextmanager
+def _client(url: str | None, token: str | None, timeout: float) -> Iterator[GridplaceClient]:
+    with GridplaceClient(url, token=token, timeout=timeout) as gp:
+        yield gp
+
+
+def _print_json(value: BaseModel | Sequence[BaseModel]) -> None:
+    if isinstance(value, BaseModel):
+        typer.echo(value.model_dump_json(indent=2))
+    else:
+        typer.echo(json.dumps([v.model_dump(mode="json") for v in value], indent=2))
+
+
+def _when(value: Any) -> str:
+    return value.strftime("%Y-%m-%d %H:%M:%S") if value is not None else "-"
+
+
+def _rows(spec: str | None, n: int) -> slice:
+    if not spec:
+        return slice(0, n)
+    try:
+        if ":" in spec:
+            a, _, b = spec.partition(":")
+            return slice(int(a) if a else 0, int(b) if b else n)
+        i = int(spec)
+        return slice(i, i + 1)
+    except ValueError as exc:
+        raise InvalidInputError(f"--rows must be START:STOP or an index, got {spec!r}") from exc
+
+
+def _load_queries(path: Path, rows: str | None) -> tuple[np.ndarray, int]:
+    from service.encoding import load_npy
+
+    X = np.asarray(load_npy(path))
+    X = X[None, :] if X.ndim == 1 else X
+    sl = _rows(rows, X.shape[0])
+    Q = X[sl]
+    if Q.shape[0] == 0:
+        raise InvalidInputError(f"--rows {rows!r} selects no row of {path} ({X.shape[0]} rows)")
+    return Q, sl.start or 0
+
+
+@app.command()
+@cli_errors
+def localize(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    npy: Annotated[
+        Path | None, typer.Option("--npy", help=".npy query descriptors (one per row)")
+    ] = None,
+    rows: Annotated[str | None, typer.Option(help="rows of --npy: START:STOP or one index")] = None,
+    image: Annotated[
+        list[Path] | None, typer.Option("--image", "-i", help="image file (repeatable)")
+    ] = None,
+    url: Url = None,
+    timeout: Timeout = 30.0,
+    as_json: AsJson = False,
+) -> None:
+    """Localize descriptors (--npy, sent as binary float32) or images (--image) on MAP."""
+    if (npy is None) == (not image):
+        raise InvalidInputError("give exactly one of --npy or --image")
+    with _client(url, None, timeout) as gp:
+        if npy is not None:
+            Q, first = _load_queries(npy, rows)
+            batch = gp.localize_batch(map_name, Q)
+            labels = [str(first + i) for i in range(batch.n)]
+        else:
+            assert image is not None
+            batch = gp.localize_images(map_name, image)
+            labels = [p.name for p in image]
+    if as_json:
+        _print_json(batch)
+        return
+    table = Table(
+        title=f"{batch.map} v{batch.version}: {batch.n} queries in {batch.latency_ms:.1f} ms"
+    )
+    for col in ("query", "frame index", "chunk", "confidence"):
+        table.add_column(col, justify="right")
+    for label, idx, chunk, conf in zip(
+        labels, batch.index, batch.chunk, batch.confidence, strict=True
+    ):
+        table.add_row(label, str(idx), str(chunk), f"{conf:.3f}")
+    console.print(table)
+
+
+def _job_line(job: Job) -> str:
+    progress = f" {job.chunks_done}/{job.chunks_total} chunks" if job.chunks_total else ""
+    return f"{job.map}: {job.state} ({job.stage}){progress}"
+
+
+def _wait(gp: GridplaceClient, job: Job, timeout: float) -> Job:
+    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TimeElapsedColumn())  # fmt: skip
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task(_job_line(job), total=job.chunks_total or None)
+
+        def update(j: Job) -> None:
+            bar.update(task, description=_job_line(j), completed=j.chunks_done,
+                       total=j.chunks_total or None)  # fmt: skip
+
+        return gp.wait_for_job(job.id, timeout=timeout, on_update=update)
+
+
+def _report_job(job: Job, as_json: bool) -> None:
+    if as_json:
+        _print_json(job)
+    else:
+        version = f" → version {job.version}" if job.version is not None else ""
+        console.print(
+            f"job {job.id}: {job.map} {job.state} ({job.stage}){version}", highlight=False
+        )
+    if job.state == "failed":
+        raise JobFailedError(f"job {job.id} failed: {job.error}", job_id=job.id)
+
+
+@app.command()
+@cli_errors
+def upload(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    route: Annotated[Path, typer.Argument(help=".npy/.npz descriptors or .zip/.tar of images")],
+    trainer: Annotated[str | None, typer.Option(help="logreg | svm | ridge | torch")] = None,
+    patterns: Annotated[
+        int | None, typer.Option("--patterns", "-k", help="number of encoders k")
+    ] = None,
+    periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
+    rho: Annotated[float | None, typer.Option(help="fraction of columns per encoder")] = None,
+    c: Annotated[float | None, typer.Option("--C", help="inverse regularisation")] = None,
+    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8")] = None,
+    chunks: Annotated[int | None, typer.Option(help="number of chunks")] = None,
+    extractor: Annotated[
+        str | None, typer.Option(help="patchnorm | hog | cnn (image archives)")
+    ] = None,
+    idempotency_key: Annotated[
+        str | None, typer.Option(help="same key → same job on a retry")
+    ] = None,
+    wait: Annotated[
+        bool, typer.Option("--wait/--no-wait", help="follow the job until it ends")
+    ] = False,
+    wait_timeout: Annotated[float, typer.Option(help="seconds to wait with --wait")] = 3600.0,
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+    as_json: AsJson = False,
+) -> None:
+    """Upload ROUTE and train a new version of MAP (exit 2 if the job fails with --wait)."""
+    period_list = None
+    if periods:
+        try:
+            period_list = [int(p) for p in periods.replace("x", ",").split(",") if p.strip()]
+        except ValueError as exc:
+            raise InvalidInputError(
+                f"--periods must be integers separated by commas: {periods!r}"
+            ) from exc
+    given = {"trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
+             "C": c, "dtype": dtype, "n_chunks": chunks, "extractor": extractor}  # fmt: skip
+    options = options_of(None, {k: v for k, v in given.items() if v is not None})
+    with _client(url, token, timeout) as gp:
+        with console.status(
+            f"uploading {route.name} ({route.stat().st_size if route.is_file() else 0:,} B)"
+        ):
+            job = gp.upload_route(map_name, route, options, idempotency_key=idempotency_key)
+        if not wait:
+            if as_json:
+                _print_json(job)
+            else:
+                console.print(f"job {job.id} {job.state}; follow it with: gridplace client jobs {job.id} --wait",
+                              highlight=False)  # fmt: skip
+            return
+        job = _wait(gp, job, wait_timeout)
+    _report_job(job, as_json)
+
+
+@app.command()
+@cli_errors
+def jobs(
+    job_ids: Annotated[list[str], typer.Argument(metavar="JOB_ID...", help="job ids")],
+    wait: Annotated[
+        bool, typer.Option("--wait/--no-wait", help="wait until each job ends")
+    ] = False,
+    wait_timeout: Annotated[float, typer.Option(help="seconds to wait with --wait")] = 3600.0,
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+    as_json: AsJson = False,
+) -> None:
+    """Show training jobs (state, stage, chunk progress, version); exit 2 if one failed."""
+    with _client(url, token, timeout) as gp:
+        found = [
+            (_wait(gp, gp.get_job(j), wait_timeout) if wait else gp.get_job(j)) for j in job_ids
+        ]
+    if as_json:
+        _print_json(found)
+    else:
+        table = Table()
+        for col in (
+            "job",
+            "map",
+            "state",
+            "stage",
+            "chunks",
+            "version",
+            "created",
+            "finished",
+            "error",
+        ):
+            table.add_column(col)
+        for j in found:
+            table.add_row(j.id, j.map, j.state, j.stage, f"{j.chunks_done}/{j.chunks_total}",
+                          str(j.version) if j.version is not None else "-", _when(j.created_at),
+                          _when(j.finished_at), j.error or "")  # fmt: skip
+        console.print(table)
+    failed = [j.id for j in found if j.state == "failed"]
+    if failed:
+        raise JobFailedError(f"failed: {', '.join(failed)}")
+
+
+@app.command()
+@cli_errors
+def status(url: Url = None, timeout: Timeout = 10.0, as_json: AsJson = False) -> None:
+    """Liveness and readiness of the server (exit 2 if it cannot be reached)."""
+    with _client(url, None, timeout) as gp:
+        gp.health()
+        ready = gp.ready()
+    if as_json:
+        _print_json(ready)
+        return
+    loaded = ", ".join(f"{m} v{v}" for m, v in ready.loaded.items()) or "no map"
+    console.print(f"{gp.base_url}: alive, {'ready' if ready.ready else 'NOT ready'}; serving {loaded}"
+                  + (f"; pending {', '.join(ready.pending)}" if ready.pending else "")
+                  + (f"; errors {ready.errors}" if ready.errors else ""), highlight=False)  # fmt: skip
+
+
+@app.command()
+@cli_errors
+def maps(
+    url: Url = None, token: Token = None, timeout: Timeout = 30.0, as_json: AsJson = False
+) -> None:
+    """List every map with its active version."""
+    with _client(url, token, timeout) as gp:
+        found = gp.list_maps()
+    if as_json:
+        _print_json(found)
+        return
+    table = Table()
+    for col in ("map", "active", "versions", "created"):
+        table.add_column(col)
+    for m in found:
+        active = str(m.active_version) if m.active_version is not None else "-"
+        table.add_row(m.name, active, ",".join(map(str, m.versions)), _when(m.created_at))
+    console.print(table if found else "no maps yet")
+
+
+@app.command()
+@cli_errors
+def versions(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+    as_json: AsJson = False,
+) -> None:
+    """List the versions of MAP: size, footprint, training metrics."""
+    with _client(url, token, timeout) as gp:
+        found = gp.list_versions(map_name)
+    if as_json:
+        _print_json(found)
+        return
+    table = Table(title=f"map {map_name}")
+    for col in (
+        "version",
+        "active",
+        "kind",
+        "frames",
+        "d",
+        "stored bytes",
+        "P@0 (train)",
+        "created",
+    ):
+        table.add_column(col, no_wrap=col in ("kind", "created"))
+    for v in found:
+        p0 = v.metrics.get("train_precision_at_0")
+        table.add_row(str(v.version), "*" if v.active else "", v.kind, str(v.n_frames), str(v.n_features),
+                      f"{v.footprint.get('actual_bytes', v.artifact_bytes):,}",
+                      f"{p0:.3f}" if isinstance(p0, (int, float)) else "-", _when(v.created_at))  # fmt: skip
+    console.print(table)
+
+
+@app.command()
+@cli_errors
+def activate(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    version: Annotated[int, typer.Argument(help="version to serve")],
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+    as_json: AsJson = False,
+) -> None:
+    """Serve VERSION of MAP (promote or roll back; the server hot-swaps)."""
+    with _client(url, token, timeout) as gp:
+        v = gp.activate(map_name, version)
+    if as_json:
+        _print_json(v)
+    else:
+        console.print(f"map {v.map}: version {v.version} is active", highlight=False)
+
+
+@app.command()
+@cli_errors
+def deactivate(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+) -> None:
+    """Take MAP out of service (localize answers 409 until a version is activated)."""
+    with _client(url, token, timeout) as gp:
+        gp.deactivate(map_name)
+    console.print(f"map {map_name}: out of service", highlight=False)
+
+
+@app.command()
+@cli_errors
+def delete(
+    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    version: Annotated[int, typer.Argument(help="an inactive version")],
+    url: Url = None,
+    token: Token = None,
+    timeout: Timeout = 30.0,
+) -> None:
+    """Delete an inactive VERSION of MAP."""
+    with _client(url, token, timeout) as gp:
+        gp.delete_version(map_name, version)
+    console.print(f"map {map_name}: version {version} deleted", highlight=False)
+
+
+def register(root: typer.Typer) -> None:
+    root.add_typer(app, name="client")
