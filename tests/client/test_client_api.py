@@ -179,9 +179,13 @@ def test_unreachable_server_is_a_clear_unavailable_error() -> None:
     assert exc.value.code == "server_unreachable" and exc.value.http_status == 503
 
 
-def test_async_client(server: ServerProcess, synth: Job, route: Route, data_dir: Path) -> None:
+def test_async_client(
+    server: ServerProcess, synth: Job, route: Route, data_dir: Path, tmp_path: Path
+) -> None:
     Q = route[1][:8]
     want = _oracle(data_dir, "synth", 1, Q)
+    path = tmp_path / "async-route.npy"
+    np.save(path, route[0][:120], allow_pickle=False)
 
     async def main() -> None:
         async with AsyncGridplaceClient(server.url, token=TOKEN) as agp:
@@ -195,5 +199,9 @@ def test_async_client(server: ServerProcess, synth: Job, route: Route, data_dir:
                 await agp.list_versions("nope")
             with pytest.raises(GridplaceError):
                 await agp.activate("synth", 99)
+            job = await agp.upload_route("async", path, trainer="ridge", idempotency_key="a-1")
+            done = await agp.wait_for_job(job.id, timeout=90, poll_interval=0.05)
+            assert done.state == "succeeded" and done.version == 1
+            assert (await agp.get_map("async")).active_version == 1
 
     asyncio.run(main())
