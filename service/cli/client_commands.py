@@ -173,6 +173,15 @@ def upload(
     extractor: Annotated[
         str | None, typer.Option(help="patchnorm | hog | cnn (image archives)")
     ] = None,
+    param: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--param",
+            "-p",
+            help="any other training/extractor option as KEY=VALUE "
+            "(e.g. -p width=64 -p height=32 -p top_chunks=3), repeatable",
+        ),
+    ] = None,
     idempotency_key: Annotated[
         str | None, typer.Option(help="same key → same job on a retry")
     ] = None,
@@ -196,7 +205,13 @@ def upload(
             ) from exc
     given = {"trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
              "C": c, "dtype": dtype, "n_chunks": chunks, "extractor": extractor}  # fmt: skip
-    options = options_of(None, {k: v for k, v in given.items() if v is not None})
+    extra: dict[str, object] = {}
+    for item in param or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InvalidInputError(f"--param must be KEY=VALUE, got {item!r}")
+        extra[key.strip()] = value.split(",") if key.strip() == "periods" else value.strip()
+    options = options_of(None, {**extra, **{k: v for k, v in given.items() if v is not None}})
     with _client(url, token, timeout) as gp:
         with console.status(
             f"uploading {route.name} ({route.stat().st_size if route.is_file() else 0:,} B)"

@@ -64,10 +64,11 @@ def test_upload_wait_jobs_activate(server: ServerProcess, synth: Job, route: Rou
     path = tmp_path / "cli-route.npy"
     np.save(path, route[0], allow_pickle=False)
     r = _run(server, "upload", "cli", str(path), "--trainer", "ridge", "--periods", "20,15",
-             "--idempotency-key", "cli-1", "--wait", "--json")  # fmt: skip
+             "--idempotency-key", "cli-1", "-p", "random_state=3", "--wait", "--json")  # fmt: skip
     assert r.exit_code == 0, r.output
     job = json.loads(r.output[r.output.index("{") :])
     assert job["state"] == "succeeded" and job["version"] == 1
+    assert gp.get_version("cli", 1).params["random_state"] == 3
     r = _run(server, "jobs", job["id"], "--json")
     assert r.exit_code == 0 and json.loads(r.output)[0]["id"] == job["id"]
     r = _run(server, "upload", "cli", str(path), "--trainer", "ridge", "--idempotency-key", "cli-2")
@@ -97,6 +98,10 @@ def test_errors_print_their_code_and_exit_2(
     assert r.exit_code == 2 and "route file not found" in r.output
     r = _run(server, "upload", "x", str(tmp_path / "missing.npy"), "--periods", "a,b")
     assert r.exit_code == 2 and "--periods must be integers" in r.output
+    r = _run(server, "upload", "x", str(tmp_path / "missing.npy"), "-p", "bogus=1")
+    assert r.exit_code == 2 and "error [invalid_parameter]" in r.output and "bogus" in r.output
+    r = _run(server, "upload", "x", str(tmp_path / "missing.npy"), "-p", "rho")
+    assert r.exit_code == 2 and "KEY=VALUE" in r.output
     bad = tmp_path / "bad.npy"
     np.save(bad, np.full((30, 4), np.nan), allow_pickle=False)
     r = _run(server, "upload", "bad", str(bad), "--trainer", "ridge", "--wait")
