@@ -113,28 +113,28 @@ class TrainingOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    n_patterns: int | None = Field(None, ge=1)
+    n_patterns: int | None = Field(default=None, ge=1)
     periods: list[int] | None = None
-    rho: float | None = Field(None, gt=0.0, le=1.0)
+    rho: float | None = Field(default=None, gt=0.0, le=1.0)
     gamma: float | None = None
     trainer: Literal["logreg", "svm", "ridge", "torch"] | None = None
-    C: float | None = Field(None, gt=0.0)
+    C: float | None = Field(default=None, gt=0.0)
     decode: Literal["joint", "argmax"] | None = None
-    beam_width: int | None = Field(None, ge=1)
+    beam_width: int | None = Field(default=None, ge=1)
     dtype: Literal["float64", "float32", "float16", "int8"] | None = None
-    n_chunks: int | None = Field(None, ge=1)
-    chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
-    top_chunks: int | None = Field(None, ge=1)
+    n_chunks: int | None = Field(default=None, ge=1)
+    chunk_rho: float | None = Field(default=None, gt=0.0, le=1.0)
+    top_chunks: int | None = Field(default=None, ge=1)
     random_state: int | None = None
     extractor: Literal["patchnorm", "hog", "cnn"] | None = None
-    width: int | None = Field(None, ge=1)
-    height: int | None = Field(None, ge=1)
-    patch: int | None = Field(None, ge=1)
-    orientations: int | None = Field(None, ge=1)
-    pixels_per_cell: int | None = Field(None, ge=1)
-    cells_per_block: int | None = Field(None, ge=1)
+    width: int | None = Field(default=None, ge=1)
+    height: int | None = Field(default=None, ge=1)
+    patch: int | None = Field(default=None, ge=1)
+    orientations: int | None = Field(default=None, ge=1)
+    pixels_per_cell: int | None = Field(default=None, ge=1)
+    cells_per_block: int | None = Field(default=None, ge=1)
     arch: str | None = None
-    weights: str | None = Field(None, description="a path on the server")
+    weights: str | None = Field(default=None, description="a path on the server")
 
     @model_validator(mode="after")
     def _periods(self) -> TrainingOptions:

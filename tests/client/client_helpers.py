@@ -9,13 +9,13 @@ import zipfile
 import numpy as np
 from PIL import Image
 
-from service.client import GridplaceClient
+from service.client import GridplaceClient, TrainingOptions
 
 TOKEN = "client-tests-admin-token"
 N, D = 300, 64
 ENV = {"GRIDPLACE_ADMIN_TOKEN": TOKEN, "GRIDPLACE_MAX_UPLOAD_MB": "1",
        "GRIDPLACE_RELOAD_INTERVAL_S": "0.1", "GRIDPLACE_TRAIN_WORKERS": "1"}  # fmt: skip
-IMAGE_OPTIONS = {"extractor": "patchnorm", "width": 32, "height": 16, "patch": 8}
+IMAGE_OPTIONS = TrainingOptions(extractor="patchnorm", width=32, height=16, patch=8)
 
 
 def png(seed: int) -> bytes:

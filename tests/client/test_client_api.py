@@ -95,12 +95,15 @@ def test_upload_from_a_file_activate_and_delete(gp: GridplaceClient, synth: Job,
 
 
 def test_image_route_and_image_queries(gp: GridplaceClient) -> None:
-    job = gp.upload_route("imgs", images_zip(24), filename="frames.zip", trainer="ridge",
-                          **IMAGE_OPTIONS)  # fmt: skip
+    job = gp.upload_route(
+        "imgs", images_zip(24), IMAGE_OPTIONS, filename="frames.zip", trainer="ridge"
+    )
     job = gp.wait_for_job(job.id, timeout=90, poll_interval=0.05)
     assert job.state == "succeeded", job.error
     wait_serving(gp, "imgs", 1)
-    assert gp.get_map("imgs").active.extractor["kind"] == "patchnorm"  # type: ignore[union-attr]
+    active = gp.get_map("imgs").active
+    assert active is not None and active.extractor is not None
+    assert active.extractor["kind"] == "patchnorm" and active.params["trainer"] == "ridge"
     one = gp.localize("imgs", image=png(3))
     assert one.map == "imgs" and 0 <= one.index < 24
     many = gp.localize_images("imgs", [png(3), png(7)])
