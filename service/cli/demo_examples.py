@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import base64
 import json
+import re
 import shlex
 from pathlib import Path
 
@@ -30,11 +32,37 @@ def _proto_flags() -> str:
     return f"-import-path {_q(PROTOS_DIR)} {files} "
 
 
+_FIELD = re.compile(r"^\s*(repeated\s+)?(\w+)\s+(\w+)\s*=\s*\d+", re.MULTILINE)
+
+
+def request_fields(protos_dir: Path, message: str = "LocalizeRequest") -> dict[str, str]:
+    """``field name → type`` of ``message`` in the shipped protos (empty if none is found)."""
+    files = sorted(protos_dir.rglob("*.proto")) if protos_dir.is_dir() else []
+    for proto in files:
+        text = proto.read_text(errors="replace")
+        match = re.search(rf"message\s+{message}\s*\{{(.*?)\n\}}", text, re.DOTALL)
+        if match:
+            return {name: f"{'repeated ' if rep else ''}{typ}"
+                    for rep, typ, name in _FIELD.findall(match.group(1))}  # fmt: skip
+    return {}
+
+
+def localize_body(descriptor: np.ndarray, fields: dict[str, str]) -> dict[str, object]:
+    """A proto3-JSON ``Localize`` request for ``descriptor``: a repeated float field gets the
+    numbers, a bytes field base64 float32 (the default without protos: ``descriptor`` floats)."""
+    vec = np.ascontiguousarray(descriptor, dtype="<f4").ravel()
+    name = next((f for f in fields if "descriptor" in f), "descriptor")
+    value: object = [round(float(v), 6) for v in vec]
+    if fields.get(name) == "bytes":
+        value = base64.b64encode(vec.tobytes()).decode("ascii")
+    map_field = next((f for f in fields if f in ("map", "map_name", "name")), "map")
+    return {map_field: "demo", name: value}
+
+
 def grpc_request(data_dir: Path, descriptor: np.ndarray) -> Path:
-    """A grpcurl request body for ``Localize`` (proto3 JSON: repeated float descriptor)."""
+    """The grpcurl request body file for ``Localize``."""
     path = data_dir / "demo-grpc-localize.json"
-    floats = [round(float(v), 6) for v in np.asarray(descriptor, dtype=np.float32).ravel()]
-    path.write_text(json.dumps({"map": "demo", "descriptor": floats}))
+    path.write_text(json.dumps(localize_body(descriptor, request_fields(PROTOS_DIR))))
     return path
 
 
