@@ -115,16 +115,19 @@ class LocalizationService:
         """Localize a raw little-endian float32 body of ``n×d`` values."""
         start = time.perf_counter()
         loaded = self.served(name)
+        return self._answer(loaded, self.query_bytes(loaded, data, n_features), start, "binary")
+
+    def query_bytes(self, loaded: LoadedModel, data: bytes, n_features: int | None = None) -> np.ndarray:
+        """Validated ``(n, d)`` queries from float32 bytes for ``loaded`` (also used by streams)."""
         if n_features is not None and n_features != loaded.n_features:
             raise DimensionMismatchError(
-                f"d={n_features} was declared but map {name!r} version {loaded.version} "
+                f"d={n_features} was declared but map {loaded.map!r} version {loaded.version} "
                 f"expects d={loaded.n_features}", expected=loaded.n_features, got=n_features,
             )  # fmt: skip
-        Q = check_descriptors(
+        return check_descriptors(
             decode_float32(data, loaded.n_features), n_features=loaded.n_features,
             what="descriptors",
         )  # fmt: skip
-        return self._answer(loaded, Q, start, "binary")
 
     def localize_images(self, name: str, images: Sequence[tuple[str, bytes]]) -> LocalizeResult:
         """Localize encoded images with the extractor stored with the active version."""
@@ -134,17 +137,25 @@ class LocalizationService:
         if len(images) > MAX_BATCH_IMAGES:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.served(name)
+        return self._answer(loaded, self.query_images(loaded, images), start, "image")
+
+    def query_images(self, loaded: LoadedModel, images: Sequence[tuple[str, bytes]]) -> np.ndarray:
+        """Validated ``(n, d)`` descriptors of encoded images with ``loaded``'s extractor."""
         extractor = loaded.extractor()
         if extractor is None:
             raise ConflictError(
-                f"map {name!r} version {loaded.version} was trained on uploaded descriptors "
+                f"map {loaded.map!r} version {loaded.version} was trained on uploaded descriptors "
                 "without an image extractor; send descriptors, or train from images",
-                map=name, version=loaded.version,
+                map=loaded.map, version=loaded.version,
             )  # fmt: skip
         decoded = [decode_image(data, label) for label, data in images]
-        Q = check_descriptors(extractor.extract(decoded), n_features=loaded.n_features,
-                              what="image descriptors")  # fmt: skip
-        return self._answer(loaded, Q, start, "image")
+        return check_descriptors(extractor.extract(decoded), n_features=loaded.n_features,
+                                 what="image descriptors")  # fmt: skip
+
+    def answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
+        """Localize validated queries on ``loaded`` and record the metrics (``start``: the
+        request's ``perf_counter`` at arrival)."""
+        return self._answer(loaded, Q, start, kind)
 
     def _answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
         loc = loaded.model.localize(Q)

@@ -1,0 +1,147 @@
+"""Fleet streams: ordered frames of many vehicles, each optionally sequence-filtered.
+
+Transport-agnostic glue over :class:`~service.core.localization.LocalizationService` (the
+gRPC ``LocalizeStream`` uses it; a REST/WebSocket stream could use it unchanged). A frame is
+validated and localized exactly as a single ``/localize`` query is (same validation, metrics
+and hot-swap semantics); with ``sequence_filter`` the vehicle's recent frames are combined
+along the route by :class:`service.encoding.sequence.SequenceFilter` (SeqSLAM-like).
+
+A vehicle's filter history belongs to one map *version*: when the served version changes
+(an activation or rollback mid-stream), the map changes, the flag is turned off, or the client
+asks for a reset, the history restarts, so scores of two different models are never mixed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.core.localization import LocalizationService
+from service.core.model_store import LoadedModel
+from service.encoding.sequence import SequenceConfig, SequenceFilter
+from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
+
+MAX_VEHICLE_ID = 128
+MAX_VEHICLES_PER_STREAM = 1024
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One request of a stream: exactly one of ``descriptor`` (little-endian float32 bytes,
+    ``d`` values) or ``image`` (encoded image bytes)."""
+
+    vehicle_id: str
+    sequence: int
+    map: str
+    descriptor: bytes | None = None
+    image: bytes | None = None
+    sequence_filter: bool = False
+    reset: bool = False
+
+
+@dataclass(frozen=True)
+class FrameAnswer:
+    vehicle_id: str
+    sequence: int
+    map: str
+    version: int
+    index: int  # filtered estimate when ``filtered``, else the frame's own
+    chunk: int
+    confidence: float
+    filtered: bool
+    raw_index: int  # the frame's own estimate (what /localize answers)
+    raw_confidence: float
+    frames_used: int  # frames the filter combined (1 unfiltered)
+    latency_ms: float
+
+
+@dataclass
+class _Track:
+    map: str
+    version: int
+    filter: SequenceFilter
+
+
+def _chunk_of(loaded: LoadedModel, index: int) -> int:
+    bounds = getattr(loaded.model, "chunk_bounds_", None)
+    if bounds is None:
+        return 0
+    return int(np.searchsorted(np.asarray(bounds), index, side="right") - 1)
+
+
+class FleetStream:
+    """The state of one open stream: a sequence filter per vehicle (least recently seen
+    vehicles are forgotten beyond ``max_vehicles``). Not thread-safe: one stream's frames are
+    answered one after another, in order."""
+
+    def __init__(
+        self,
+        service: LocalizationService,
+        config: SequenceConfig | None = None,
+        max_vehicles: int = MAX_VEHICLES_PER_STREAM,
+    ) -> None:
+        self.service = service
+        self.config = config or SequenceConfig()
+        self.config.velocities()  # validate once, not per vehicle
+        self.max_vehicles = max_vehicles
+        self._tracks: OrderedDict[str, _Track] = OrderedDict()
+
+    @property
+    def vehicles(self) -> int:
+        """Vehicles with filter history in this stream."""
+        return len(self._tracks)
+
+    def answer(self, frame: Frame) -> FrameAnswer:
+        """Localize one frame (raises a :class:`~service.errors.GridplaceError` for a bad one;
+        the stream's other state is untouched by a failure)."""
+        start = time.perf_counter()
+        if len(frame.vehicle_id) > MAX_VEHICLE_ID:
+            raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
+        loaded = self.service.served(frame.map)  # one reference for the frame: hot-swap safe
+        Q = self._query(loaded, frame)
+        raw = self.service.answer(loaded, Q, start, "stream")
+        raw_index, raw_conf = int(raw.index[0]), float(raw.confidence[0])
+        index, chunk, conf, used = raw_index, int(raw.chunk[0]), raw_conf, 1
+        if frame.sequence_filter:
+            track = self._track(frame, loaded)
+            estimate = track.filter.update(loaded.model.frame_log_scores(Q)[0])
+            index, conf, used = estimate.index, estimate.confidence, estimate.frames_used
+            chunk = _chunk_of(loaded, index)
+        else:
+            self._tracks.pop(frame.vehicle_id, None)
+        return FrameAnswer(
+            frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
+            frame.sequence_filter, raw_index, raw_conf, used,
+            (time.perf_counter() - start) * 1000.0,
+        )  # fmt: skip
+
+    def _query(self, loaded: LoadedModel, frame: Frame) -> np.ndarray:
+        if frame.descriptor is not None and frame.image is not None:
+            raise InvalidInputError("a frame carries a descriptor or an image, not both")
+        if frame.image is not None:
+            label = f"vehicle {frame.vehicle_id!r} frame {frame.sequence}"
+            return self.service.query_images(loaded, [(label, frame.image)])
+        if frame.descriptor is None:
+            raise EmptyInputError("the frame has neither a descriptor nor an image")
+        Q = self.service.query_bytes(loaded, frame.descriptor)
+        if Q.shape[0] != 1:
+            raise DimensionMismatchError(
+                f"a stream frame carries one descriptor of d={loaded.n_features} float32 values; "
+                f"got {Q.shape[0] * loaded.n_features}",
+                expected=loaded.n_features, got=int(Q.size),
+            )  # fmt: skip
+        return Q
+
+    def _track(self, frame: Frame, loaded: LoadedModel) -> _Track:
+        track = self._tracks.get(frame.vehicle_id)
+        if (track is None or frame.reset or track.map != loaded.map
+                or track.version != loaded.version):  # fmt: skip
+            track = _Track(loaded.map, loaded.version, SequenceFilter(loaded.n_frames, self.config))
+            self._tracks[frame.vehicle_id] = track
+        self._tracks.move_to_end(frame.vehicle_id)
+        while len(self._tracks) > self.max_vehicles:
+            self._tracks.popitem(last=False)
+        return track
