@@ -1,0 +1,155 @@
+"""``LocalizeStream`` against a real ``gridplace serve``: order across concurrent vehicles,
+bad messages answered in-stream, sequence filtering, and a model swap mid-stream."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator, Sequence
+
+import grpc
+import numpy as np
+import pytest
+from conftest import D, N, Served, publish
+
+from service.encoding.synthetic import smooth_route
+from service.grpc.gen import localization_pb2 as pb
+from service.grpc.gen import localization_pb2_grpc as pb_grpc
+
+pytestmark = pytest.mark.slow
+
+
+def f32(x: np.ndarray) -> bytes:
+    return np.ascontiguousarray(x, dtype="<f4").tobytes()
+
+
+async def _requests(items: Sequence[pb.StreamRequest]) -> AsyncIterator[pb.StreamRequest]:
+    for item in items:
+        yield item
+
+
+async def stream(channel: grpc.aio.Channel, items: Sequence[pb.StreamRequest]) -> list[pb.StreamResponse]:
+    call = pb_grpc.LocalizationStub(channel).LocalizeStream(_requests(items))
+    return [r async for r in call]
+
+
+def run(served: Served, *batches: Sequence[pb.StreamRequest]) -> list[list[pb.StreamResponse]]:
+    """Each batch on its own stream, all streams concurrently over one channel."""
+
+    async def go() -> list[list[pb.StreamResponse]]:
+        async with grpc.aio.insecure_channel(served.target) as channel:
+            return list(await asyncio.gather(*(stream(channel, b) for b in batches)))
+
+    return asyncio.run(go())
+
+
+def test_concurrent_vehicles_get_every_answer_in_order(served: Served) -> None:
+    n_streams, per_stream = 4, 1000  # 4 streams × 2 vehicles each, 4,000 frames
+    batches, frames = [], []
+    for s in range(n_streams):
+        rows = [(7 * s + i) % N for i in range(per_stream)]
+        frames.append(rows)
+        batches.append([pb.StreamRequest(vehicle_id=f"truck-{s}-{i % 2}", sequence=i, map="route",
+                                         descriptor=f32(served.query[r]))
+                        for i, r in enumerate(rows)])  # fmt: skip
+    answers = run(served, *batches)
+    for sent, got, rows in zip(batches, answers, frames, strict=True):
+        assert [(r.vehicle_id, r.sequence) for r in got] == [(q.vehicle_id, q.sequence) for q in sent]
+        assert not any(r.HasField("error") for r in got)
+        assert [r.index for r in got] == served.oracle[rows].tolist()
+        assert all(r.version == 1 and not r.filtered and r.raw_index == r.index for r in got)
+
+
+def test_a_bad_message_is_answered_and_the_stream_goes_on(served: Served) -> None:
+    good = f32(served.query[5])
+    bad = [
+        pb.StreamRequest(map="route", descriptor=f32(np.zeros(D - 1))),
+        pb.StreamRequest(map="route", descriptor=f32(np.zeros(2 * D))),
+        pb.StreamRequest(map="route", descriptor=f32(np.full(D, np.inf))),
+        pb.StreamRequest(map="route"),
+        pb.StreamRequest(map="nowhere", descriptor=good),
+        pb.StreamRequest(map="parked", descriptor=good),
+        pb.StreamRequest(map="route", image=b"\x89PNG"),
+        pb.StreamRequest(map="imgs", image=b"not an image", sequence_filter=True),
+    ]
+    expected = ["INVALID_ARGUMENT"] * 4 + ["NOT_FOUND"] + ["FAILED_PRECONDITION"] * 2 + ["INVALID_ARGUMENT"]
+    items = []
+    for i, b in enumerate(bad):
+        items.append(pb.StreamRequest(vehicle_id="car", sequence=2 * i, map="route", descriptor=good))
+        b.vehicle_id, b.sequence = "car", 2 * i + 1
+        items.append(b)
+    items.append(pb.StreamRequest(vehicle_id="car", sequence=99, map="imgs", image=served.images[9]))
+    (got,) = run(served, items)
+    assert [r.sequence for r in got] == [q.sequence for q in items]
+    errors = [r.error for r in got[1::2][: len(bad)]]
+    assert [e.status for e in errors] == expected and all(e.message and e.code for e in errors)
+    assert all(not r.HasField("error") and r.index == served.oracle[5] for r in got[0:-1:2])
+    assert got[-1].index == served.image_oracle[9] and not got[-1].HasField("error")
+
+
+def _precision(pred: list[int], truth: Sequence[int], tol: int = 2) -> float:
+    return float(np.mean(np.abs(np.asarray(pred) - np.asarray(truth)) <= tol))
+
+
+def test_sequence_filter_stabilises_a_noisy_route(served: Served) -> None:
+    noisy = smooth_route(N, D, query_noise=1.0, seed=4).query  # same SYNTHETIC route, more noise
+    truth = list(range(40, N))
+
+    def drive(vehicle: str, flag: bool) -> list[pb.StreamRequest]:
+        return [pb.StreamRequest(vehicle_id=vehicle, sequence=i, map="route", sequence_filter=flag,
+                                 descriptor=f32(noisy[t])) for i, t in enumerate(truth)]  # fmt: skip
+
+    filtered, raw = run(served, drive("seq", True), drive("plain", False))
+    assert all(r.filtered for r in filtered) and not any(r.filtered for r in raw)
+    assert [r.raw_index for r in filtered] == [r.index for r in raw]  # same frames, same model
+    assert [r.frames_used for r in filtered[:8]] == [1, 2, 3, 4, 5, 6, 6, 6]
+    p_raw = _precision([r.index for r in raw], truth)
+    p_seq = _precision([r.index for r in filtered], truth)
+    assert p_raw < 0.9 and p_seq > p_raw + 0.1, (p_raw, p_seq)
+
+
+def test_reset_and_turning_the_filter_off_restart_the_history(served: Served) -> None:
+    def req(i: int, **kw: bool) -> pb.StreamRequest:
+        return pb.StreamRequest(vehicle_id="bus", sequence=i, map="route",
+                                descriptor=f32(served.query[100 + i]), **kw)  # fmt: skip
+
+    items = [req(0, sequence_filter=True), req(1, sequence_filter=True),
+             req(2, sequence_filter=True, reset_sequence=True), req(3, sequence_filter=True),
+             req(4), req(5, sequence_filter=True)]  # fmt: skip
+    (got,) = run(served, items)
+    assert [r.frames_used for r in got] == [1, 2, 1, 2, 1, 1]
+    assert [r.filtered for r in got] == [True, True, True, True, False, True]
+
+
+def test_a_new_version_mid_stream_keeps_the_stream_and_says_so(served: Served) -> None:
+    async def go() -> list[pb.StreamResponse]:
+        async with grpc.aio.insecure_channel(served.target) as channel:
+            call = pb_grpc.LocalizationStub(channel).LocalizeStream()
+            got: list[pb.StreamResponse] = []
+            deadline = time.monotonic() + 30
+            i = 0
+            while time.monotonic() < deadline:
+                await call.write(pb.StreamRequest(vehicle_id="van", sequence=i, map="swap",
+                                                  sequence_filter=True,
+                                                  descriptor=f32(served.query[i % N])))  # fmt: skip
+                got.append(await call.read())
+                if i == 50:  # activate a new version while the stream is open
+                    await asyncio.to_thread(publish, served.data_dir, "swap",
+                                            served.reference[::-1].copy(), None, True)  # fmt: skip
+                if got[-1].version == 2 and len([r for r in got if r.version == 2]) >= 20:
+                    break
+                i += 1
+            await call.done_writing()
+            assert await call.read() == grpc.aio.EOF
+            return got
+
+    got = asyncio.run(go())
+    versions = [r.version for r in got]
+    assert versions[0] == 1 and versions[-1] == 2 and versions == sorted(versions)
+    assert [r.sequence for r in got] == list(range(len(got)))
+    assert not any(r.HasField("error") for r in got)
+    first_v2 = versions.index(2)
+    assert got[first_v2].frames_used == 1 and got[first_v2 - 1].frames_used == 6  # filter restarted
+    # v2 is the route reversed: its frame i is v1's frame N-1-i
+    late = got[-10:]
+    assert all(abs((N - 1 - r.raw_index) - r.sequence % N) <= 3 for r in late)
