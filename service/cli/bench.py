@@ -43,6 +43,25 @@ def bench_serve(
     run_serve_bench(n_frames, single, batch_queries, batch_size, params, out)
 
 
+@app.command("grpc")
+def bench_grpc(
+    n_frames: Annotated[int, typer.Option(help="route length N of the served maps")] = 10_000,
+    frames: Annotated[int, typer.Option(help="frames sent, on 1 stream and split over --streams")] = 4000,
+    streams: Annotated[int, typer.Option(help="concurrent streams")] = 8,
+    rest_batch: Annotated[int, typer.Option(help="queries per REST batch request")] = 256,
+    query_noise: Annotated[float, typer.Option(help="noise of the SYNTHETIC filter route")] = 1.0,
+    noisy_d: Annotated[int, typer.Option(help="descriptor size of the SYNTHETIC filter route")] = 256,
+    trainer: Annotated[str, typer.Option()] = "ridge",
+    patterns: Annotated[int, typer.Option(help="k")] = 2,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-grpc.json"),
+) -> None:
+    """gRPC frames/s on 1 and N streams beside REST, and what sequence filtering does to precision."""
+    from service.bench.grpc_bench import run_grpc_bench
+
+    params = {"trainer": trainer, "n_patterns": str(patterns)}
+    run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out)
+
+
 from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments, issue #6)
 
 app.command("paper")(bench_paper)
