@@ -1,0 +1,76 @@
+"""``service.core.streams.FleetStream`` in-process over a real registry (SYNTHETIC route)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from service.core.context import ServiceContext, build_context
+from service.core.streams import Frame, FleetStream
+from service.encoding import ModelParams, build_model
+from service.encoding.synthetic import smooth_route
+from service.errors import DimensionMismatchError, InvalidInputError
+from service.registry import Registry
+from service.settings import Settings
+
+N, D = 240, 32
+
+
+@pytest.fixture(scope="module")
+def ctx(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServiceContext, np.ndarray]]:
+    data_dir: Path = tmp_path_factory.mktemp("streams")
+    route = smooth_route(N, D, query_noise=0.3, seed=2)  # SYNTHETIC
+    params = {"trainer": "ridge", "n_chunks": 3}
+    model = build_model(ModelParams.parse(**params)).fit(route.reference)
+    registry = Registry(data_dir)
+    registry.publish("chunked", model, params=params, extractor=None, metrics={})
+    context = build_context(Settings(data_dir=data_dir), registry=registry)
+    try:
+        yield context, route.query
+    finally:
+        context.close()
+
+
+def frame(Q: np.ndarray, row: int, vehicle: str = "v", **kw: object) -> Frame:
+    return Frame(vehicle_id=vehicle, sequence=row, map="chunked",
+                 descriptor=Q[row].astype("<f4").tobytes(), **kw)  # type: ignore[arg-type]  # fmt: skip
+
+
+def test_filtered_estimates_name_their_chunk(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    stream = FleetStream(context.service)
+    answers = [stream.answer(frame(Q, r, sequence_filter=True)) for r in range(60, 120)]
+    bounds = context.service.served("chunked").model.chunk_bounds_
+    assert [a.frames_used for a in answers[:7]] == [1, 2, 3, 4, 5, 6, 6]
+    for a in answers:
+        assert bounds[a.chunk] <= a.index < bounds[a.chunk + 1]
+    truth = np.arange(60, 120)
+    filtered = np.mean(np.abs(np.array([a.index for a in answers]) - truth) <= 2)
+    raw = np.mean(np.abs(np.array([a.raw_index for a in answers]) - truth) <= 2)
+    assert filtered > raw + 0.1 and filtered > 0.75
+
+
+def test_the_least_recent_vehicle_is_forgotten(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    stream = FleetStream(context.service, max_vehicles=2)
+    for vehicle in ("a", "b", "a", "c"):  # c evicts b (a was seen more recently)
+        stream.answer(frame(Q, 10, vehicle, sequence_filter=True))
+    assert stream.vehicles == 2
+    assert stream.answer(frame(Q, 11, "a", sequence_filter=True)).frames_used == 3
+    assert stream.answer(frame(Q, 11, "b", sequence_filter=True)).frames_used == 1
+
+
+def test_bad_frames_raise_the_hierarchy_and_leave_the_history(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    stream = FleetStream(context.service)
+    stream.answer(frame(Q, 5, sequence_filter=True))
+    with pytest.raises(InvalidInputError, match="longer"):
+        stream.answer(frame(Q, 6, "x" * 200))
+    with pytest.raises(InvalidInputError, match="not both"):
+        stream.answer(Frame("v", 7, "chunked", descriptor=b"\0" * 4 * D, image=b"png"))
+    with pytest.raises(DimensionMismatchError, match="one descriptor"):
+        stream.answer(Frame("v", 8, "chunked", descriptor=Q[:2].astype("<f4").tobytes()))
+    assert stream.answer(frame(Q, 9, sequence_filter=True)).frames_used == 2
