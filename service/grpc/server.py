@@ -24,8 +24,8 @@ from grpc_reflection.v1alpha import reflection
 
 from service.core.context import ServiceContext
 from service.errors import UnavailableError
-from service.grpc.servicer import SERVICE_NAME, LocalizationServicer
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
+from service.grpc.servicer import SERVICE_NAME, LocalizationServicer
 from service.settings import Settings
 
 log = logging.getLogger("gridplace.grpc")
@@ -76,7 +76,7 @@ class GrpcServer:
         self._loop = asyncio.new_event_loop()
         try:
             self._loop.run_until_complete(self._serve(context))
-        except BaseException as exc:  # noqa: BLE001 - reported to start() or logged
+        except BaseException as exc:
             self._error = exc
             if self._started.is_set():
                 log.exception("the gRPC server failed")

@@ -8,8 +8,8 @@ from typing import Any
 import grpc
 import numpy as np
 import pytest
-from conftest import TOKEN, Served
 from grpc_health.v1 import health_pb2, health_pb2_grpc
+from grpc_helpers import TOKEN, Served
 from grpc_reflection.v1alpha import reflection_pb2, reflection_pb2_grpc
 
 from service.errors import ConflictError, NotFoundError, UnavailableError

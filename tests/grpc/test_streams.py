@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from service.core.context import ServiceContext, build_context
-from service.core.streams import Frame, FleetStream
+from service.core.streams import FleetStream, Frame
 from service.encoding import ModelParams, build_model
 from service.encoding.synthetic import smooth_route
 from service.errors import DimensionMismatchError, InvalidInputError
