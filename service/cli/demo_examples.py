@@ -119,7 +119,8 @@ def print_examples(
             "",
             f"# gRPC on {host}:{grpc_port} (service {GRPC_SERVICE})",
             f"grpcurl -plaintext {flags}-d @ {host}:{grpc_port} {GRPC_SERVICE}/Localize < {_q(body)}",
-            f"grpcurl -plaintext {flags}-d '{{}}' {host}:{grpc_port} {GRPC_SERVICE}/ListMaps",
+            f'grpcurl -plaintext {flags}-H "authorization: Bearer $GRIDPLACE_ADMIN_TOKEN" '
+            f"-d '{{}}' {host}:{grpc_port} {GRPC_SERVICE}/ListMaps",
         ]
     else:
         lines += [

@@ -34,11 +34,19 @@ def test_companions_share_the_context_and_stop_first(settings, registry, backend
     assert rec.events == ["start", "stop"]
 
 
-def test_no_grpc_module_means_no_companion(settings) -> None:
-    import importlib.util
+def test_a_missing_transport_module_means_no_companion(settings, monkeypatch) -> None:
+    import service.api.companions as companions
 
-    if importlib.util.find_spec("service.grpc") is None:
-        assert discover_companions(settings) == []
+    monkeypatch.setattr(companions, "COMPANION_MODULES", ("service.grpc_not_in_this_build.server",))
+    assert discover_companions(settings) == []
+
+
+def test_the_grpc_companion_is_discovered(settings) -> None:
+    found = discover_companions(settings.model_copy(update={"grpc_port": 0}))
+    # grpc_port 0 turns gRPC off; any other port yields the gRPC companion
+    assert found == []
+    names = [c.name for c in discover_companions(settings.model_copy(update={"grpc_port": 50999}))]
+    assert names and all("grpc" in n for n in names)
 
 
 def test_openapi_documents_bearer_auth(client: TestClient) -> None:
