@@ -29,6 +29,7 @@ from rich.table import Table
 from service.cli.errors import cli_errors
 from service.client import GridplaceClient, Job, JobFailedError
 from service.client.calls import options_of
+from service.encoding.phases import parse_periods
 from service.errors import InvalidInputError
 
 app = typer.Typer(help="Talk to a running gridplace server (REST).", no_args_is_help=True)
@@ -195,14 +196,8 @@ def upload(
     as_json: AsJson = False,
 ) -> None:
     """Upload ROUTE and train a new version of MAP (exit 2 if the job fails with --wait)."""
-    period_list = None
-    if periods:
-        try:
-            period_list = [int(p) for p in periods.replace("x", ",").split(",") if p.strip()]
-        except ValueError as exc:
-            raise InvalidInputError(
-                f"--periods must be integers separated by commas: {periods!r}"
-            ) from exc
+    parsed = parse_periods(periods, "--periods")
+    period_list = list(parsed) if parsed is not None else None
     given = {"trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
              "C": c, "dtype": dtype, "n_chunks": chunks, "extractor": extractor}  # fmt: skip
     extra: dict[str, object] = {}

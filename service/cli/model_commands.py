@@ -16,18 +16,10 @@ from service.cli.errors import cli_errors
 from service.encoding import ModelParams, build_model, load_model, load_npy, save_model
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.evaluation import evaluate as evaluate_model
+from service.encoding.phases import parse_periods
 from service.encoding.validation import check_descriptors
 
 console = Console()
-
-
-def _parse_periods(text: str | None) -> tuple[int, ...] | None:
-    if not text:
-        return None
-    try:
-        return tuple(int(p) for p in text.replace("x", ",").split(",") if p.strip())
-    except ValueError as exc:
-        raise typer.BadParameter(f"periods must be integers separated by commas: {text!r}") from exc
 
 
 @cli_errors
@@ -49,7 +41,7 @@ def train(
 ) -> None:
     """Train a model on a route and save it as a new artifact."""
     params = ModelParams.parse(
-        n_patterns=patterns, periods=_parse_periods(periods), rho=rho, gamma=gamma,
+        n_patterns=patterns, periods=parse_periods(periods, "--periods"), rho=rho, gamma=gamma,
         trainer=trainer, C=c, decode=decode, dtype=dtype, n_chunks=chunks, chunk_rho=chunk_rho,
         top_chunks=top_chunks, n_jobs=n_jobs,
     )  # fmt: skip

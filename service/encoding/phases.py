@@ -37,6 +37,18 @@ def validate_periods(periods: Sequence[int], n_frames: int | None = None) -> tup
     return tuple(out)
 
 
+def parse_periods(text: str | None, what: str = "periods") -> tuple[int, ...] | None:
+    """``"60,60"`` or ``"60x60"`` → ``(60, 60)``; empty → ``None`` (automatic periods)."""
+    if not text:
+        return None
+    try:
+        return tuple(int(p) for p in text.replace("x", ",").split(",") if p.strip())
+    except ValueError as exc:
+        raise InvalidParameterError(
+            f"{what} must be integers separated by commas: {text!r}"
+        ) from exc
+
+
 def place_values(periods: Sequence[int]) -> np.ndarray:
     """Weight of each digit: ``∏_{m>j} τ_m`` (the last digit has weight 1)."""
     p = np.asarray(periods, dtype=np.int64)

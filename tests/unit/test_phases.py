@@ -88,3 +88,12 @@ def test_labels_outside_their_period_are_rejected() -> None:
         labels_to_index(np.array([[0, 3]]), (2, 3))
     with pytest.raises(InvalidParameterError):
         index_to_labels(np.array([6]), (2, 3))
+
+
+def test_parse_periods_accepts_commas_and_x_and_names_bad_input() -> None:
+    from service.encoding.phases import parse_periods
+
+    assert parse_periods("60,60") == (60, 60) and parse_periods("4x3x2") == (4, 3, 2)
+    assert parse_periods(None) is None and parse_periods("") is None
+    with pytest.raises(InvalidParameterError, match="--periods must be integers"):
+        parse_periods("5,a", "--periods")
