@@ -11,6 +11,7 @@ from service.api.auth import require_admin
 from service.api.routes_localize import ERRORS
 from service.api.schemas import JobOut, MapDetail, MapOut, VersionOut
 from service.core.localization import LocalizationService
+from service.encoding.phases import parse_periods
 from service.registry.names import check_map_name
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[Depends(require_admin)],
@@ -66,7 +67,7 @@ async def upload_route(
         ).items() if v is not None
     }  # fmt: skip
     if periods:
-        params["periods"] = [p.strip() for p in periods.replace("x", ",").split(",") if p.strip()]
+        params["periods"] = parse_periods(periods)
     ext: dict[str, Any] = {
         k: v for k, v in dict(
             width=width, height=height, patch=patch, orientations=orientations,

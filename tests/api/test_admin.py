@@ -172,3 +172,8 @@ def test_unauthenticated_upload_is_refused_before_its_body_is_read(client: TestC
                     headers={"Content-Type": "multipart/form-data; boundary=x"})  # fmt: skip
     assert r.status_code == 401
     assert reads <= 1  # the gate answered from the headers
+
+
+def test_non_integer_periods_are_a_400_naming_them(client, auth, route) -> None:
+    r = _upload(client, auth, "m", npy_bytes(route[0]), periods="8,a")
+    assert r.status_code == 400 and "periods must be integers" in r.json()["message"]
