@@ -93,6 +93,13 @@ class ConflictError(GridplaceError):
     grpc_status = "FAILED_PRECONDITION"
 
 
+class DimensionChangeError(ConflictError):
+    """A new version would change a map's descriptor width (its clients would break) and the
+    upload did not say ``allow_dimension_change``."""
+
+    code = "dimension_change"
+
+
 class PayloadTooLargeError(InvalidInputError):
     code = "payload_too_large"
     http_status = 413

@@ -32,10 +32,23 @@ class Settings(BaseSettings):
         1.0, gt=0, description="how often the server checks the registry for activations"
     )
     log_level: str = Field("info", description="uvicorn / logging level")
+    registry_url: str | None = Field(
+        None,
+        description="registry database: postgresql://user:pass@host/db for replicated servers "
+        "and workers on several hosts; unset = SQLite file data_dir/registry.sqlite3",
+    )
+    registry_pool_size: int = Field(
+        5, ge=1, le=100, description="PostgreSQL connections kept per process (as many again "
+        "may open under load)",
+    )
+    registry_connect_timeout_s: float = Field(
+        5.0, gt=0, le=60, description="how long to wait for the registry database before "
+        "answering 503",
+    )
     registry_journal_mode: Literal["wal", "delete"] = Field(
         "wal",
-        description="SQLite journal of the registry: wal (every process on one host) or delete "
-        "(hosts sharing data_dir over a network filesystem, where WAL's shared memory fails)",
+        description="SQLite registry only: wal (every process on one host) or delete (hosts "
+        "sharing data_dir over a network filesystem, where WAL's shared memory fails)",
     )
 
 

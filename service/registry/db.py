@@ -1,80 +1,44 @@
-"""The registry's SQLite database: schema, connections and write transactions.
+"""The registry's database: SQLite (embedded default) or PostgreSQL, through one code path.
 
-One short-lived connection per operation keeps the registry safe to share between threads
-and processes (API workers, training processes) on one data directory. WAL mode lets readers
-proceed while one writer commits; every write runs in ``BEGIN IMMEDIATE`` so concurrent
-writers queue on the busy timeout instead of failing half-way.
+:class:`Database` wraps a SQLAlchemy engine. Every statement the registry runs is portable SQL
+(named parameters, ``ON CONFLICT``, ``RETURNING``), so SQLite and PostgreSQL run the same
+queries. Writes are serialised exactly as on SQLite: a write transaction takes the database's
+write lock up front (``BEGIN IMMEDIATE`` on SQLite, a transaction-scoped advisory lock on
+PostgreSQL), so every invariant checked inside one transaction (publish-once per job, a failed
+job never publishes, one active version per map) holds under concurrent writers in any number
+of processes and hosts.
+
+SQLite: one short-lived connection per operation (safe between threads and processes on one
+data directory), WAL by default. PostgreSQL: a connection pool per process, pre-pinged, so a
+database that went away and came back is used again without a restart. An unreachable
+database is an :class:`~service.errors.UnavailableError` (HTTP 503) naming it (never its
+password).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
-from service.errors import UnavailableError
+from sqlalchemy import Connection, Engine, create_engine, event, make_url, text
+from sqlalchemy.engine import URL
+from sqlalchemy.exc import ArgumentError, DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
+from sqlalchemy.pool import NullPool
 
-SCHEMA_VERSION = 1
+from service.errors import InvalidParameterError, UnavailableError
+
 JournalMode = Literal["wal", "delete"]
 BUSY_TIMEOUT_MS = 30_000
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (
-    key TEXT PRIMARY KEY,
-    value INTEGER NOT NULL
-);
-INSERT OR IGNORE INTO meta (key, value) VALUES ('generation', 0);
-INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', 1);
-CREATE TABLE IF NOT EXISTS version_counters (
-    map TEXT PRIMARY KEY,
-    last_reserved INTEGER NOT NULL
-);
-CREATE TABLE IF NOT EXISTS maps (
-    name TEXT PRIMARY KEY,
-    created_at TEXT NOT NULL,
-    active_version INTEGER
-);
-CREATE TABLE IF NOT EXISTS versions (
-    map TEXT NOT NULL REFERENCES maps(name),
-    version INTEGER NOT NULL,
-    n_frames INTEGER NOT NULL,
-    n_features INTEGER NOT NULL,
-    kind TEXT NOT NULL,
-    params TEXT NOT NULL,
-    extractor TEXT,
-    created_at TEXT NOT NULL,
-    sha256 TEXT NOT NULL,
-    footprint TEXT NOT NULL,
-    artifact_bytes INTEGER NOT NULL,
-    metrics TEXT NOT NULL,
-    job_id TEXT UNIQUE,
-    PRIMARY KEY (map, version)
-);
-CREATE TABLE IF NOT EXISTS jobs (
-    id TEXT PRIMARY KEY,
-    map TEXT NOT NULL,
-    state TEXT NOT NULL,
-    stage TEXT NOT NULL,
-    chunks_done INTEGER NOT NULL DEFAULT 0,
-    chunks_total INTEGER NOT NULL DEFAULT 0,
-    created_at TEXT NOT NULL,
-    started_at TEXT,
-    finished_at TEXT,
-    error TEXT,
-    version INTEGER,
-    idempotency_key TEXT,
-    timings TEXT NOT NULL DEFAULT '{}',
-    spec TEXT NOT NULL,
-    backend TEXT NOT NULL,
-    owner TEXT,
-    UNIQUE (map, idempotency_key)
-);
-CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs (state);
-"""
+WRITE_LOCK_KEY = 0x67726964  # PostgreSQL advisory lock id of the registry's write lock
+_WRITE = "gridplace_write"
 
 
 def utcnow() -> datetime:
@@ -114,61 +78,160 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
+def sqlite_url(path: Path) -> str:
+    return f"sqlite:///{Path(path).resolve()}"
+
+
+def parse_url(url: str) -> URL:
+    """``url`` as a SQLAlchemy URL on a supported driver (``postgresql://`` uses psycopg 3)."""
+    try:
+        parsed = make_url(url)
+    except ArgumentError as exc:
+        raise InvalidParameterError(f"invalid registry URL: {exc}") from exc
+    backend = parsed.get_backend_name()
+    if backend == "postgresql":
+        return parsed.set(drivername="postgresql+psycopg")
+    if backend == "sqlite":
+        return parsed.set(drivername="sqlite")
+    raise InvalidParameterError(
+        f"unsupported registry database {backend!r}: use postgresql://… or sqlite:///path"
+    )
+
+
+def describe_url(url: URL) -> str:
+    """The URL for messages and logs: no password, ever."""
+    return url.render_as_string(hide_password=True).replace("+psycopg", "")
+
+
 class Database:
-    """Connections to ``registry.sqlite3`` with the pragmas every connection needs."""
+    """One engine per registry handle, with the per-dialect settings every connection needs."""
 
-    def __init__(self, path: Path, journal_mode: JournalMode = "wal") -> None:
-        self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with self.connect() as conn:
-            mode = conn.execute(f"PRAGMA journal_mode={journal_mode.upper()}").fetchone()[0]
-            if str(mode).lower() != journal_mode:
-                raise UnavailableError(
-                    f"the registry database {path} is in {mode} mode and cannot switch to "
-                    f"{journal_mode} while other processes use it; use one journal mode everywhere"
-                )
-            with self.write(conn):
-                for statement in SCHEMA.split(";"):
-                    if statement.strip():
-                        conn.execute(statement)
+    def __init__(
+        self,
+        url: str,
+        *,
+        journal_mode: JournalMode = "wal",
+        pool_size: int = 5,
+        connect_timeout_s: float = 5.0,
+    ) -> None:
+        self.url = parse_url(url)
+        self.where = describe_url(self.url)
+        self.dialect = self.url.get_backend_name()
+        self.engine = self._create_engine(pool_size, connect_timeout_s)
+        _dispose_after_fork(self.engine)
+        if self.is_sqlite:
+            self._set_journal_mode(journal_mode)
 
-    @contextmanager
-    def connect(self) -> Iterator[sqlite3.Connection]:
-        try:
-            conn = sqlite3.connect(
-                self.path, timeout=BUSY_TIMEOUT_MS / 1000, isolation_level=None
+    @property
+    def is_sqlite(self) -> bool:
+        return self.dialect == "sqlite"
+
+    def _create_engine(self, pool_size: int, connect_timeout_s: float) -> Engine:
+        if self.is_sqlite:
+            database = self.url.database
+            if not database or database == ":memory:":
+                raise InvalidParameterError("the SQLite registry needs a file path")
+            Path(database).parent.mkdir(parents=True, exist_ok=True)
+            engine = create_engine(
+                self.url, poolclass=NullPool,
+                connect_args={"timeout": BUSY_TIMEOUT_MS / 1000, "check_same_thread": False},
+            )  # fmt: skip
+
+            @event.listens_for(engine, "connect")
+            def _on_connect(dbapi_conn: sqlite3.Connection, _record: Any) -> None:
+                dbapi_conn.isolation_level = None  # transactions are begun below, explicitly
+                dbapi_conn.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
+                dbapi_conn.execute("PRAGMA foreign_keys=ON")
+                dbapi_conn.execute("PRAGMA synchronous=FULL")
+
+            @event.listens_for(engine, "begin")
+            def _on_begin(conn: Connection) -> None:
+                # take the write lock up front: no lock-upgrade deadlocks between writers
+                write = conn.get_execution_options().get(_WRITE, False)
+                conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")
+
+            return engine
+        return create_engine(
+            self.url, pool_size=pool_size, max_overflow=pool_size, pool_pre_ping=True,
+            pool_recycle=1800, pool_timeout=max(connect_timeout_s, 5.0),
+            connect_args={"connect_timeout": max(1, int(round(connect_timeout_s))),
+                          "application_name": "gridplace"},
+        )  # fmt: skip
+
+    def _set_journal_mode(self, journal_mode: JournalMode) -> None:
+        with self._errors():
+            with self.engine.connect() as conn:
+                conn.commit()  # leave the autobegun transaction: the pragma needs none
+                raw = conn.connection.dbapi_connection
+                assert raw is not None
+                mode = raw.execute(f"PRAGMA journal_mode={journal_mode.upper()}").fetchone()[0]
+        if str(mode).lower() != journal_mode:
+            raise UnavailableError(
+                f"the registry database {self.where} is in {mode} mode and cannot switch to "
+                f"{journal_mode} while other processes use it; use one journal mode everywhere"
             )
-        except sqlite3.Error as exc:
-            raise UnavailableError(f"cannot open the registry database {self.path}: {exc}") from exc
-        try:
-            conn.row_factory = sqlite3.Row
-            conn.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
-            conn.execute("PRAGMA foreign_keys=ON")
-            conn.execute("PRAGMA synchronous=FULL")
-            yield conn
-        finally:
-            conn.close()
 
-    @staticmethod
+    # -- connections ----------------------------------------------------------------------
     @contextmanager
-    def write(conn: sqlite3.Connection) -> Iterator[sqlite3.Connection]:
-        """One write transaction that takes the write lock up front (no upgrade deadlocks)."""
-        conn.execute("BEGIN IMMEDIATE")
-        try:
+    def connect(self) -> Iterator[Connection]:
+        """A connection for reads (each statement sees committed data)."""
+        with self._errors(), self.engine.connect() as conn:
             yield conn
-        except BaseException:
-            conn.execute("ROLLBACK")
+
+    @contextmanager
+    def transaction(self) -> Iterator[Connection]:
+        """One write transaction holding the registry's write lock until it commits."""
+        with self._errors():
+            with self.engine.connect().execution_options(**{_WRITE: True}) as conn:
+                with conn.begin():
+                    if not self.is_sqlite:
+                        conn.execute(text("SELECT pg_advisory_xact_lock(:k)"),
+                                     {"k": WRITE_LOCK_KEY})  # fmt: skip
+                    yield conn
+
+    @contextmanager
+    def _errors(self) -> Iterator[None]:
+        try:
+            yield
+        except (OperationalError, InterfaceError, PoolTimeoutError) as exc:
+            raise UnavailableError(
+                f"the registry database ({self.where}) is unreachable: {_first_line(exc)}",
+                registry=self.where,
+            ) from exc
+        except DBAPIError as exc:
+            if exc.connection_invalidated:
+                raise UnavailableError(
+                    f"the registry database ({self.where}) dropped the connection: "
+                    f"{_first_line(exc)}", registry=self.where,
+                ) from exc  # fmt: skip
             raise
-        conn.execute("COMMIT")
-
-    @contextmanager
-    def transaction(self) -> Iterator[sqlite3.Connection]:
-        with self.connect() as conn, self.write(conn):
-            yield conn
 
     @staticmethod
-    def bump_generation(conn: sqlite3.Connection) -> int:
+    def bump_generation(conn: Connection) -> int:
         row = conn.execute(
-            "UPDATE meta SET value = value + 1 WHERE key = 'generation' RETURNING value"
+            text("UPDATE meta SET value = value + 1 WHERE key = 'generation' RETURNING value")
         ).fetchone()
+        assert row is not None
         return int(row[0])
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+
+def _first_line(exc: BaseException) -> str:
+    orig = getattr(exc, "orig", None) or exc
+    lines = str(orig).strip().splitlines()
+    return lines[0] if lines else type(orig).__name__
+
+
+def _dispose_after_fork(engine: Engine) -> None:
+    """A forked child (an RQ work horse, a pool process) must not reuse the parent's pooled
+    connections: it gets a fresh pool, the parent's sockets stay the parent's."""
+    ref = weakref.ref(engine)
+
+    def _child() -> None:
+        eng = ref()
+        if eng is not None:
+            eng.dispose(close=False)
+
+    os.register_at_fork(after_in_child=_child)

@@ -30,6 +30,13 @@ class VersionInfo(BaseModel):
     artifact_bytes: int
     metrics: dict[str, Any]
     job_id: str | None
+    content_sha256: str | None = Field(
+        None, description="sha256 of the uploaded route's descriptors (float32 .npy)"
+    )
+    extra: dict[str, Any] = Field(
+        default_factory=dict,
+        description="further metadata, e.g. dimension_change {from, to, reference_version}",
+    )
 
 
 class MapInfo(BaseModel):
@@ -39,6 +46,17 @@ class MapInfo(BaseModel):
     active_version: int | None
     versions: list[int]
     created_at: datetime
+
+
+class JobRetry(BaseModel):
+    """One part of a job that failed and was queued again."""
+
+    model_config = ConfigDict(frozen=True)
+
+    part: str = Field(description="e.g. chunk-3, classifier, prepare, train")
+    attempt: int = Field(description="the attempt that failed (1 = the first run)")
+    error: str
+    at: datetime
 
 
 class JobInfo(BaseModel):
@@ -59,10 +77,25 @@ class JobInfo(BaseModel):
     version: int | None
     idempotency_key: str | None
     timings: dict[str, float]
+    content_sha256: str | None = None
+    retries: list[JobRetry] = Field(
+        default_factory=list, description="parts that failed and were run again, oldest first"
+    )
 
     @property
     def done(self) -> bool:
         return self.state in TERMINAL_STATES
+
+
+class RouteSource(BaseModel):
+    """What was uploaded, for recognising a repeated upload and a change of descriptor width."""
+
+    model_config = ConfigDict(frozen=True)
+
+    content_sha256: str = Field(description="sha256 of the stored float32 descriptors")
+    n_frames: int
+    n_features: int
+    allow_dimension_change: bool = False
 
 
 class JobSpec(BaseModel):
@@ -77,3 +110,5 @@ class JobSpec(BaseModel):
     extractor: dict[str, Any] | None
     backend: str
     owner: str | None = None
+    source: RouteSource | None = None
+

@@ -1,8 +1,10 @@
 """The versioned model registry: maps, immutable versions, the active version of each map.
 
-Layout under ``data_dir``::
+Layout under ``data_dir`` (the artifact store, shared by every replica and worker)::
 
-    registry.sqlite3                 maps, versions, jobs, the generation counter (WAL)
+    registry.sqlite3                 maps, versions, jobs, the generation counter (the
+                                     embedded default; ``GRIDPLACE_REGISTRY_URL`` puts the
+                                     metadata in PostgreSQL instead)
     artifacts/<map>/v<version>/      one artifact per version (manifest.json + tensors)
 
 Publishing reserves a version number (committed at once, never reused), writes the artifact
@@ -18,17 +20,29 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import sqlite3
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy import Connection, RowMapping, text
+
 from service.encoding import PlaceRecognizer, load_model, read_manifest, save_model
 from service.encoding.artifacts import MANIFEST, TENSORS
-from service.errors import ArtifactError, ConflictError, NotFoundError
-from service.registry.db import Database, JournalMode, dumps, loads, to_text, ts, utcnow
+from service.errors import ArtifactError, ConflictError, DimensionChangeError, NotFoundError
+from service.registry.db import (
+    Database,
+    JournalMode,
+    dumps,
+    loads,
+    sqlite_url,
+    to_text,
+    ts,
+    utcnow,
+)
 from service.registry.job_table import JobTable
+from service.registry.migrations import migrate
 from service.registry.models import MapInfo, VersionInfo
 from service.registry.names import check_map_name, check_version
 from service.settings import get_settings
@@ -39,37 +53,54 @@ _VERSION_DIR = re.compile(r"^v([0-9]+)$")
 
 
 class Registry(JobTable):
-    """Maps, versions and jobs of one data directory (safe from many processes)."""
+    """Maps, versions and jobs of one artifact store (safe from many processes and hosts)."""
 
     def __init__(
         self,
         data_dir: Path,
         *,
+        url: str | None = None,
         cleanup_grace_s: float | None = ORPHAN_GRACE_S,
         journal_mode: JournalMode | None = None,
     ) -> None:
-        """``journal_mode`` defaults to ``settings.registry_journal_mode`` (``wal``); use
-        ``delete`` where hosts share ``data_dir`` over a network filesystem."""
+        """``url``: the registry database, ``settings.registry_url`` when not given, else the
+        SQLite file ``data_dir/registry.sqlite3``. ``journal_mode`` (SQLite only) defaults to
+        ``settings.registry_journal_mode``. The schema is migrated on start."""
+        settings = get_settings()
         self.data_dir = Path(data_dir)
         self.artifacts_dir = self.data_dir / "artifacts"
         self.artifacts_dir.mkdir(parents=True, exist_ok=True)
-        if journal_mode is None:
-            journal_mode = get_settings().registry_journal_mode
-        self.db = Database(self.data_dir / DB_FILE, journal_mode)
+        url = url or settings.registry_url or sqlite_url(self.data_dir / DB_FILE)
+        self.db = Database(
+            url, journal_mode=journal_mode or settings.registry_journal_mode,
+            pool_size=settings.registry_pool_size,
+            connect_timeout_s=settings.registry_connect_timeout_s,
+        )  # fmt: skip
+        migrate(self.db)
         if cleanup_grace_s is not None:
             self.cleanup_orphans(min_age_s=cleanup_grace_s)
+
+    @property
+    def where(self) -> str:
+        """The registry database, for messages (no password)."""
+        return self.db.where
+
+    def close(self) -> None:
+        self.db.close()
 
     # -- reading --------------------------------------------------------------------------
     def generation(self) -> int:
         """A counter bumped by every publish, activation and deletion (cheap to poll)."""
         with self.db.connect() as conn:
-            row = conn.execute("SELECT value FROM meta WHERE key = 'generation'").fetchone()
+            row = conn.execute(text("SELECT value FROM meta WHERE key = 'generation'")).one()
         return int(row[0])
 
     def list_maps(self) -> list[MapInfo]:
         with self.db.connect() as conn:
-            maps = conn.execute("SELECT * FROM maps ORDER BY name").fetchall()
-            versions = conn.execute("SELECT map, version FROM versions ORDER BY version").fetchall()
+            maps = conn.execute(text("SELECT * FROM maps ORDER BY name")).mappings().all()
+            versions = conn.execute(
+                text("SELECT map, version FROM versions ORDER BY version")
+            ).mappings().all()  # fmt: skip
         by_map: dict[str, list[int]] = {}
         for row in versions:
             by_map.setdefault(row["map"], []).append(int(row["version"]))
@@ -82,7 +113,8 @@ class Registry(JobTable):
             versions = [
                 int(r[0])
                 for r in conn.execute(
-                    "SELECT version FROM versions WHERE map = ? ORDER BY version", (name,)
+                    text("SELECT version FROM versions WHERE map = :m ORDER BY version"),
+                    {"m": name},
                 )
             ]
         return self._map_info(row, versions)
@@ -92,8 +124,8 @@ class Registry(JobTable):
         with self.db.connect() as conn:
             active = self._map_row(conn, name)["active_version"]
             rows = conn.execute(
-                "SELECT * FROM versions WHERE map = ? ORDER BY version", (name,)
-            ).fetchall()
+                text("SELECT * FROM versions WHERE map = :m ORDER BY version"), {"m": name}
+            ).mappings().all()  # fmt: skip
         return [self._version_info(r, active) for r in rows]
 
     def get_version(self, name: str, version: int) -> VersionInfo:
@@ -116,11 +148,26 @@ class Registry(JobTable):
     def version_for_job(self, job_id: str) -> VersionInfo | None:
         """The version a training job published, if any."""
         with self.db.connect() as conn:
-            row = conn.execute("SELECT * FROM versions WHERE job_id = ?", (job_id,)).fetchone()
+            row = conn.execute(
+                text("SELECT * FROM versions WHERE job_id = :j"), {"j": job_id}
+            ).mappings().first()  # fmt: skip
             if row is None:
                 return None
             active = self._map_row(conn, row["map"])["active_version"]
         return self._version_info(row, active)
+
+    def reference_width(self, name: str) -> tuple[int, int] | None:
+        """``(version, n_features)`` that a new version of ``name`` must match: the active
+        version, else the newest one; ``None`` for a map without versions."""
+        check_map_name(name)
+        with self.db.connect() as conn:
+            return self._reference_width(conn, name)
+
+    def check_width(self, name: str, n_features: int, allow_change: bool) -> dict[str, Any] | None:
+        """Refuse (409) a new version of another descriptor width than the map's clients use,
+        unless ``allow_change``; returns the change to record (``None``: no change)."""
+        with self.db.connect() as conn:
+            return _width_change(self._reference_width(conn, name), name, n_features, allow_change)
 
     def artifact_dir(self, name: str, version: int) -> Path:
         return self.artifacts_dir / check_map_name(name) / f"v{check_version(version)}"
@@ -149,27 +196,35 @@ class Registry(JobTable):
         metrics: dict[str, Any],
         job_id: str | None = None,
         activate: bool | None = None,
+        content_sha256: str | None = None,
+        extra: dict[str, Any] | None = None,
+        allow_dimension_change: bool = False,
     ) -> VersionInfo:
         """Store a fitted model as the next version of ``name``.
 
         The map is created on its first version. ``activate``: ``None`` activates the version
         only if the map has no other version (the first one), ``True`` activates it, ``False``
         never does. A job publishes at most one version: a retried job gets back the version
-        it already published."""
+        it already published. A model of another descriptor width than the map's active (or
+        newest) version is refused (:class:`ConflictError`) unless ``allow_dimension_change``;
+        an allowed change is recorded in the version's ``extra["dimension_change"]``.
+        ``content_sha256`` is the hash of the route the version was trained on."""
         check_map_name(name)
         model._check_fitted()  # NotFittedError before a version number is spent
         if job_id is not None and (done := self.version_for_job(job_id)) is not None:
             return done
+        self.check_width(name, int(model.n_features_in_), allow_dimension_change)
         version = self._reserve_version(name)
         path = self.artifact_dir(name, version)
         if path.exists():  # left by a registry database that was lost or replaced
             self._discard(path)
-        extra = {"map": name, "version": version, "job_id": job_id, "metrics": metrics,
-                 "extractor": extractor}  # fmt: skip
-        manifest = save_model(model, path, extra=extra)
+        manifest_extra = {"map": name, "version": version, "job_id": job_id, "metrics": metrics,
+                          "extractor": extractor}  # fmt: skip
+        manifest = save_model(model, path, extra=manifest_extra)
+        record = _Record(params, extractor, metrics, job_id, activate, content_sha256,
+                         dict(extra or {}), allow_dimension_change)  # fmt: skip
         try:
-            committed = self._commit_version(name, version, path, manifest, params, extractor,
-                                             metrics, job_id, activate)  # fmt: skip
+            committed = self._commit_version(name, version, path, manifest, record)
         except BaseException:
             self._discard(path)
             raise
@@ -188,7 +243,8 @@ class Registry(JobTable):
         with self.db.transaction() as conn:
             self._map_row(conn, name)
             self._version_row(conn, name, version)
-            conn.execute("UPDATE maps SET active_version = ? WHERE name = ?", (version, name))
+            conn.execute(text("UPDATE maps SET active_version = :v WHERE name = :m"),
+                         {"v": version, "m": name})  # fmt: skip
             self.db.bump_generation(conn)
         return self.get_version(name, version)
 
@@ -197,7 +253,8 @@ class Registry(JobTable):
         check_map_name(name)
         with self.db.transaction() as conn:
             self._map_row(conn, name)
-            conn.execute("UPDATE maps SET active_version = NULL WHERE name = ?", (name,))
+            conn.execute(text("UPDATE maps SET active_version = NULL WHERE name = :m"),
+                         {"m": name})  # fmt: skip
             self.db.bump_generation(conn)
         return self.get_map(name)
 
@@ -213,7 +270,8 @@ class Registry(JobTable):
                     f"version {version} is the active version of map {name!r}; "
                     "activate another version first", map=name, version=version,
                 )  # fmt: skip
-            conn.execute("DELETE FROM versions WHERE map = ? AND version = ?", (name, version))
+            conn.execute(text("DELETE FROM versions WHERE map = :m AND version = :v"),
+                         {"m": name, "v": version})  # fmt: skip
             self.db.bump_generation(conn)
         self._discard(self.artifact_dir(name, version))  # after commit: a crash leaves an orphan
 
@@ -223,7 +281,8 @@ class Registry(JobTable):
         removed: list[Path] = []
         now = time.time()
         with self.db.connect() as conn:
-            known = {(r[0], int(r[1])) for r in conn.execute("SELECT map, version FROM versions")}
+            known = {(r[0], int(r[1]))
+                     for r in conn.execute(text("SELECT map, version FROM versions"))}  # fmt: skip
         for map_dir in sorted(p for p in self.artifacts_dir.iterdir() if p.is_dir()):
             for entry in sorted(map_dir.iterdir()):
                 try:
@@ -244,9 +303,9 @@ class Registry(JobTable):
                 # still there, so it either wins (row exists) or fails cleanly
                 with self.db.transaction() as conn:
                     row = conn.execute(
-                        "SELECT 1 FROM versions WHERE map = ? AND version = ?",
-                        (map_dir.name, int(match.group(1))),
-                    ).fetchone()
+                        text("SELECT 1 FROM versions WHERE map = :m AND version = :v"),
+                        {"m": map_dir.name, "v": int(match.group(1))},
+                    ).first()
                     trash = None if row is not None else self._move_to_trash(entry)
                 if trash is not None:
                     shutil.rmtree(trash, ignore_errors=True)
@@ -257,62 +316,73 @@ class Registry(JobTable):
     def _reserve_version(self, name: str) -> int:
         with self.db.transaction() as conn:
             row = conn.execute(
-                "INSERT INTO version_counters (map, last_reserved) VALUES (?, 1) "
-                "ON CONFLICT (map) DO UPDATE SET last_reserved = last_reserved + 1 "
-                "RETURNING last_reserved",
-                (name,),
-            ).fetchone()
+                text("INSERT INTO version_counters (map, last_reserved) VALUES (:m, 1) "
+                     "ON CONFLICT (map) DO UPDATE "
+                     "SET last_reserved = version_counters.last_reserved + 1 "
+                     "RETURNING last_reserved"),
+                {"m": name},
+            ).one()  # fmt: skip
         return int(row[0])
 
     def _commit_version(
-        self,
-        name: str,
-        version: int,
-        path: Path,
-        manifest: dict[str, Any],
-        params: dict[str, Any],
-        extractor: dict[str, Any] | None,
-        metrics: dict[str, Any],
-        job_id: str | None,
-        activate: bool | None = None,
+        self, name: str, version: int, path: Path, manifest: dict[str, Any], record: _Record
     ) -> int | None:
-        """The one metadata transaction of a publish; None if ``job_id`` already published."""
+        """The one metadata transaction of a publish; None if the job already published."""
         try:
             sha = manifest["files"][TENSORS]["sha256"]
             artifact_bytes = int(manifest["artifact_bytes"])
             footprint = manifest["footprint"]
-        except (KeyError, TypeError) as exc:
+            n_features = int(manifest["n_features"])
+        except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"artifact {path} has an incomplete manifest: {exc}") from exc
+        job_id = record.job_id
         now = to_text(utcnow())
         with self.db.transaction() as conn:
             if not (path / MANIFEST).is_file():
                 raise ArtifactError(f"artifact {path} disappeared before it was recorded")
             if job_id is not None and conn.execute(
-                "SELECT 1 FROM versions WHERE job_id = ?", (job_id,)
-            ).fetchone():
+                text("SELECT 1 FROM versions WHERE job_id = :j"), {"j": job_id}
+            ).first():
                 return None
             if job_id is not None and conn.execute(
-                "SELECT 1 FROM jobs WHERE id = ? AND state = 'failed'", (job_id,)
-            ).fetchone():  # serialised with fail_job by the write lock: never both
+                text("SELECT 1 FROM jobs WHERE id = :j AND state = 'failed'"), {"j": job_id}
+            ).first():  # serialised with fail_job by the write lock: never both
                 raise ConflictError(
                     f"training job {job_id} has failed (timed out or cancelled); "
                     "its model is not published", job_id=job_id,
                 )  # fmt: skip
-            conn.execute("INSERT OR IGNORE INTO maps (name, created_at) VALUES (?, ?)", (name, now))
+            # checked again under the lock: a version of another width may have gone live
+            change = _width_change(self._reference_width(conn, name), name, n_features,
+                                   record.allow_dimension_change)  # fmt: skip
+            extra = {**record.extra, **({"dimension_change": change} if change else {})}
+            conn.execute(
+                text("INSERT INTO maps (name, created_at) VALUES (:m, :t) "
+                     "ON CONFLICT (name) DO NOTHING"),
+                {"m": name, "t": now},
+            )  # fmt: skip
+            activate = record.activate
             if activate is None:  # the first version (of a new or emptied map) goes live
                 activate = not conn.execute(
-                    "SELECT 1 FROM versions WHERE map = ? LIMIT 1", (name,)
-                ).fetchone()
+                    text("SELECT 1 FROM versions WHERE map = :m LIMIT 1"), {"m": name}
+                ).first()
             conn.execute(
-                "INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
-                "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (name, version, int(manifest["n_frames"]), int(manifest["n_features"]),
-                 manifest["kind"], dumps(params), None if extractor is None else dumps(extractor),
-                 now, sha, dumps(footprint), artifact_bytes, dumps(metrics), job_id),
+                text("INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
+                     "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id, "
+                     "content_sha256, extra) VALUES (:map, :version, :n_frames, :n_features, "
+                     ":kind, :params, :extractor, :created_at, :sha256, :footprint, "
+                     ":artifact_bytes, :metrics, :job_id, :content_sha256, :extra)"),
+                {"map": name, "version": version, "n_frames": int(manifest["n_frames"]),
+                 "n_features": n_features, "kind": manifest["kind"],
+                 "params": dumps(record.params),
+                 "extractor": None if record.extractor is None else dumps(record.extractor),
+                 "created_at": now, "sha256": sha, "footprint": dumps(footprint),
+                 "artifact_bytes": artifact_bytes, "metrics": dumps(record.metrics),
+                 "job_id": job_id, "content_sha256": record.content_sha256,
+                 "extra": dumps(extra)},
             )  # fmt: skip
             if activate:
-                conn.execute("UPDATE maps SET active_version = ? WHERE name = ?", (version, name))
+                conn.execute(text("UPDATE maps SET active_version = :v WHERE name = :m"),
+                             {"v": version, "m": name})  # fmt: skip
             self.db.bump_generation(conn)
         return version
 
@@ -330,23 +400,36 @@ class Registry(JobTable):
             shutil.rmtree(trash, ignore_errors=True)
 
     @staticmethod
-    def _map_row(conn: sqlite3.Connection, name: str) -> sqlite3.Row:
-        row = conn.execute("SELECT * FROM maps WHERE name = ?", (name,)).fetchone()
+    def _reference_width(conn: Connection, name: str) -> tuple[int, int] | None:
+        row = conn.execute(
+            text("SELECT v.version, v.n_features FROM versions v JOIN maps m ON m.name = v.map "
+                 "WHERE v.map = :m ORDER BY (v.version = m.active_version) DESC, v.version DESC "
+                 "LIMIT 1"),
+            {"m": name},
+        ).first()  # fmt: skip
+        return None if row is None else (int(row[0]), int(row[1]))
+
+    @staticmethod
+    def _map_row(conn: Connection, name: str) -> RowMapping:
+        row = conn.execute(
+            text("SELECT * FROM maps WHERE name = :m"), {"m": name}
+        ).mappings().first()  # fmt: skip
         if row is None:
             raise NotFoundError(f"no map named {name!r}", map=name)
         return row
 
     @staticmethod
-    def _version_row(conn: sqlite3.Connection, name: str, version: int) -> sqlite3.Row:
+    def _version_row(conn: Connection, name: str, version: int) -> RowMapping:
         row = conn.execute(
-            "SELECT * FROM versions WHERE map = ? AND version = ?", (name, version)
-        ).fetchone()
+            text("SELECT * FROM versions WHERE map = :m AND version = :v"),
+            {"m": name, "v": version},
+        ).mappings().first()
         if row is None:
             raise NotFoundError(f"map {name!r} has no version {version}", map=name, version=version)
         return row
 
     @staticmethod
-    def _map_info(row: sqlite3.Row, versions: list[int]) -> MapInfo:
+    def _map_info(row: RowMapping, versions: list[int]) -> MapInfo:
         return MapInfo(
             name=row["name"],
             active_version=row["active_version"],
@@ -355,7 +438,7 @@ class Registry(JobTable):
         )
 
     @staticmethod
-    def _version_info(row: sqlite3.Row, active: int | None) -> VersionInfo:
+    def _version_info(row: RowMapping, active: int | None) -> VersionInfo:
         return VersionInfo(
             map=row["map"],
             version=row["version"],
@@ -371,4 +454,36 @@ class Registry(JobTable):
             artifact_bytes=row["artifact_bytes"],
             metrics=loads(row["metrics"]),
             job_id=row["job_id"],
+            content_sha256=row["content_sha256"],
+            extra=loads(row["extra"]) or {},
         )
+
+
+@dataclass(frozen=True)
+class _Record:
+    """What a publish records beside the artifact."""
+
+    params: dict[str, Any]
+    extractor: dict[str, Any] | None
+    metrics: dict[str, Any]
+    job_id: str | None
+    activate: bool | None
+    content_sha256: str | None
+    extra: dict[str, Any]
+    allow_dimension_change: bool
+
+
+def _width_change(
+    reference: tuple[int, int] | None, name: str, n_features: int, allow_change: bool
+) -> dict[str, Any] | None:
+    if reference is None or reference[1] == n_features:
+        return None
+    version, width = reference
+    if not allow_change:
+        raise DimensionChangeError(
+            f"map {name!r} version {version} takes d={width} descriptors but this route has "
+            f"d={n_features}: its clients would break; upload with allow_dimension_change=true "
+            "to change the map's descriptor width", map=name, version=version,
+            expected=width, got=n_features,
+        )  # fmt: skip
+    return {"from": width, "to": n_features, "reference_version": version}

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from service.errors import InvalidInputError, NotFoundError
-from service.registry import Registry
+from service.registry import Registry, RouteSource
+from service.registry.job_table import encode_cursor
 
 
 def _create(registry: Registry, key: str | None = None, name: str = "route-a"):
@@ -111,3 +112,102 @@ def test_a_failed_job_cannot_publish(registry):
     with pytest.raises(NotFoundError):
         registry.get_map("route-a")
     assert not any((registry.data_dir / "artifacts" / "route-a").glob("v*"))
+
+
+def _source(sha: str = "a" * 64, d: int = 8) -> RouteSource:
+    return RouteSource(content_sha256=sha, n_frames=60, n_features=d)
+
+
+def _create_from(registry: Registry, source: RouteSource, params: dict | None = None,
+                 force: bool = False, name: str = "route-a"):  # fmt: skip
+    return registry.create_job(
+        name, route=registry.data_dir / "uploads" / "x.npy", params=params or {"rho": 0.5},
+        extractor=None, backend="embedded", source=source, force=force,
+    )  # fmt: skip
+
+
+def test_a_repeated_upload_is_the_existing_job_unless_forced(registry):
+    first, created = _create_from(registry, _source())
+    again, created_again = _create_from(registry, _source())
+    assert created and not created_again and again.id == first.id
+    assert first.content_sha256 == "a" * 64
+    other_params, c1 = _create_from(registry, _source(), params={"rho": 0.25})
+    other_data, c2 = _create_from(registry, _source("b" * 64))
+    other_map, c3 = _create_from(registry, _source(), name="route-b")
+    assert c1 and c2 and c3 and len({first.id, other_params.id, other_data.id, other_map.id}) == 4
+    forced, c4 = _create_from(registry, _source(), force=True)
+    assert c4 and forced.id != first.id
+
+
+def test_a_repeat_of_a_failed_job_trains_again_and_of_a_deleted_version_too(registry):
+    from service.encoding import ModelParams, build_model
+    from service.encoding.synthetic import smooth_route
+
+    failed, _ = _create_from(registry, _source())
+    registry.fail_job(failed.id, "boom")
+    retry, created = _create_from(registry, _source())
+    assert created and retry.id != failed.id
+    model = build_model(ModelParams.parse(trainer="ridge")).fit(smooth_route(60, 8).reference)
+    v = registry.publish("route-a", model, params={}, extractor=None, metrics={}, job_id=retry.id)
+    registry.finish_job(retry.id, v.version)
+    same, created = _create_from(registry, _source())
+    assert not created and same.id == retry.id and same.version == v.version
+    v2 = registry.publish("route-a", model, params={}, extractor=None, metrics={})
+    registry.activate("route-a", v2.version)
+    registry.delete_version("route-a", v.version)
+    fresh, created = _create_from(registry, _source())
+    assert created and fresh.id != retry.id
+
+
+def test_progress_counts_each_part_once_and_retries_are_recorded(registry):
+    job, _ = _create(registry)
+    registry.mark_running(job.id, "chunks", chunks_total=3)
+    assert registry.record_progress(job.id, chunks_done_delta=1, part="chunk-0")
+    assert registry.record_retry(job.id, "chunk-1", 1, "its worker stopped sending heartbeats")
+    assert registry.record_progress(job.id, chunks_done_delta=1, part="chunk-1")
+    assert registry.record_progress(job.id, chunks_done_delta=1, part="chunk-1")  # a 2nd run
+    got = registry.get_job(job.id)
+    assert got.chunks_done == 2 and registry.parts_done(job.id) == {"chunk-0", "chunk-1"}
+    assert [(r.part, r.attempt) for r in got.retries] == [("chunk-1", 1)]
+    assert "heartbeats" in got.retries[0].error and got.retries[0].at is not None
+    registry.fail_job(job.id, "x")
+    assert not registry.record_retry(job.id, "chunk-2", 1, "late")
+
+
+def test_jobs_are_listed_newest_first_in_pages(registry):
+    ids = [_create(registry, name="route-a" if i % 2 else "route-b")[0].id for i in range(7)]
+    registry.fail_job(ids[0], "x")
+    seen, cursor = [], None
+    while True:
+        page = registry.list_jobs(limit=3, after=cursor)
+        seen += [j.id for j in page]
+        if len(page) < 3:
+            break
+        cursor = encode_cursor(page[-1])
+    assert seen == ids[::-1]
+    assert [j.id for j in registry.list_jobs(map_name="route-a")] == ids[1::2][::-1]
+    assert [j.id for j in registry.list_jobs(states=["failed"])] == [ids[0]]
+    with pytest.raises(InvalidInputError, match="cursor"):
+        registry.list_jobs(after="not-a-cursor")
+
+
+def test_a_new_version_of_another_width_needs_allow_dimension_change(registry):
+    from service.encoding import ModelParams, build_model
+    from service.encoding.synthetic import smooth_route
+    from service.errors import DimensionChangeError
+
+    def fit(d: int):
+        return build_model(ModelParams.parse(trainer="ridge")).fit(smooth_route(60, d).reference)
+
+    narrow, wide = fit(8), fit(12)
+    registry.publish("route-a", narrow, params={}, extractor=None, metrics={})
+    with pytest.raises(DimensionChangeError, match="d=8 .* d=12") as info:
+        registry.publish("route-a", wide, params={}, extractor=None, metrics={})
+    assert info.value.http_status == 409 and info.value.details["expected"] == 8
+    assert registry.get_map("route-a").versions == [1]  # nothing published, no orphan
+    assert registry.check_width("route-a", 8, False) is None
+    v2 = registry.publish("route-a", wide, params={}, extractor=None, metrics={},
+                          allow_dimension_change=True)  # fmt: skip
+    assert v2.extra["dimension_change"] == {"from": 8, "to": 12, "reference_version": 1}
+    # the reference is the ACTIVE version (v1, d=8) while v2 is not activated
+    assert registry.reference_width("route-a") == (1, 8)

@@ -17,6 +17,8 @@ from service.errors import ArtifactError, NotFoundError
 from service.registry import Registry
 from service.registry.db import JournalMode
 
+from registry_pg import empty_database
+
 
 def test_corrupt_tensors_are_detected_on_load(registry, publish, model):
     publish(model)
@@ -138,38 +140,52 @@ def test_generation_bumps_on_publish_activate_delete_only(registry, publish, mod
     assert g0 < g1 < g2 < g3 < g4
 
 
-def _publish_many(
-    data_dir: str, model: PlaceRecognizer, n: int, out: mp.Queue, mode: JournalMode
-) -> None:
-    reg = Registry(Path(data_dir), journal_mode=mode)
-    out.put([
-        reg.publish("shared", model, params={}, extractor=None, metrics={}).version
-        for _ in range(n)
-    ])  # fmt: skip
+def _publish_and_activate(
+    data_dir: str, url: str | None, model: PlaceRecognizer, n: int, out: mp.Queue,
+    mode: JournalMode,
+) -> None:  # fmt: skip
+    reg = Registry(Path(data_dir), url=url, journal_mode=mode)
+    mine = []
+    for _ in range(n):
+        v = reg.publish("shared", model, params={}, extractor=None, metrics={}).version
+        mine.append(v)
+        reg.activate("shared", v)  # another process may activate its own right after
+    out.put(mine)
 
 
-@pytest.mark.parametrize("mode", ["wal", "delete"])
-def test_concurrent_publishes_from_two_processes_get_distinct_versions(tmp_path, model, mode):
+@pytest.mark.parametrize("store", ["sqlite-wal", "sqlite-delete", "postgresql"])
+def test_concurrent_publishers_and_activators_in_several_processes(tmp_path, model, store,
+                                                                   request):  # fmt: skip
+    url: str | None = None
+    mode: JournalMode = "delete" if store == "sqlite-delete" else "wal"
+    if store == "postgresql":
+        url = request.getfixturevalue("pg_url")
+        empty_database(url)
     ctx = mp.get_context("fork")  # no threads in the test process; fork keeps this fast
     out: mp.Queue = ctx.Queue()
-    Registry(tmp_path, journal_mode=mode)  # create the schema once
-    procs = [ctx.Process(target=_publish_many, args=(str(tmp_path), model, 4, out, mode))
-             for _ in range(2)]  # fmt: skip
+    first = Registry(tmp_path, url=url, journal_mode=mode)  # the parent's pool is not shared
+    g0 = first.generation()
+    procs = [ctx.Process(target=_publish_and_activate,
+                         args=(str(tmp_path), url, model, 4, out, mode))
+             for _ in range(3)]  # fmt: skip
     for p in procs:
         p.start()
-    results = [out.get(timeout=60) for _ in procs]
+    results = [out.get(timeout=90) for _ in procs]
     for p in procs:
         p.join(timeout=60)
         assert p.exitcode == 0
     versions = sorted(v for r in results for v in r)
-    assert versions == list(range(1, 9))
-    reg = Registry(tmp_path, journal_mode=mode)
+    assert versions == list(range(1, 13))  # distinct, none lost, none reused
+    reg = Registry(tmp_path, url=url, journal_mode=mode)
     info = reg.get_map("shared")
     assert info.versions == versions
-    assert info.active_version in versions[:2] and info.active_version is not None
+    assert info.active_version in versions
     assert sum(v.active for v in reg.list_versions("shared")) == 1
+    assert reg.generation() == g0 + 24  # every publish and activation counted once
     for v in versions:
         reg.load_model("shared", v)
+    first.close()
+    reg.close()
 
 
 def test_rollback_journal_for_network_filesystems(tmp_path, model):
