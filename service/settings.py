@@ -28,6 +28,18 @@ class Settings(BaseSettings):
     max_upload_mb: int = Field(512, ge=1, description="largest accepted upload (MiB)")
     train_workers: int = Field(2, ge=1, description="embedded training processes")
     job_timeout_s: int = Field(6 * 3600, ge=1, description="a training job's time limit")
+    job_retries: int = Field(
+        2, ge=0, le=10, description="RQ backend: how often a training part (chunk, classifier, "
+        "prepare) whose worker died or that failed unexpectedly runs again before the job fails",
+    )
+    job_retry_backoff_s: int = Field(
+        5, ge=0, le=3600, description="RQ backend: wait before the first retry of a part "
+        "(doubling for each further one)",
+    )
+    reconcile_interval_s: float = Field(
+        15.0, ge=0, description="RQ backend: how often the server checks unfinished jobs "
+        "against Redis (a job that can no longer finish fails then; 0 = only when polled)",
+    )
     reload_interval_s: float = Field(
         1.0, gt=0, description="how often the server checks the registry for activations"
     )

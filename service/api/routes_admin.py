@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, File, Form, Header, Request, Response, UploadFile
+from fastapi import APIRouter, Depends, File, Form, Header, Query, Request, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 
 from service.api.auth import require_admin
 from service.api.routes_localize import ERRORS
-from service.api.schemas import JobOut, MapDetail, MapOut, VersionOut
+from service.api.schemas import JobOut, JobPage, MapDetail, MapOut, VersionOut
 from service.core.localization import LocalizationService
 from service.encoding.phases import parse_periods
 from service.registry.names import check_map_name
@@ -54,10 +54,19 @@ async def upload_route(
     cells_per_block: Opt = None,
     arch: Annotated[str | None, Form()] = None,
     weights: Annotated[str | None, Form(description="server-side path of CNN weights")] = None,
+    allow_dimension_change: Annotated[bool, Form(
+        description="accept a descriptor width other than the active version's (its clients "
+        "must change too); refused with 409 otherwise")] = False,
+    force: Annotated[bool, Form(
+        description="train even if this route was uploaded before with the same parameters")
+    ] = False,
     idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key")] = None,
 ) -> JobOut:
     """Returns 202 and the training job; poll ``GET /v1/jobs/{id}``. The same
-    ``Idempotency-Key`` for the same map returns the existing job instead of a second one."""
+    ``Idempotency-Key`` for the same map returns the existing job instead of a second one;
+    so does the same route (by content) with the same parameters and extractor, unless
+    ``force``: then the answer is 200 with ``reused: true`` (and the job's ``version`` once
+    it succeeded)."""
     check_map_name(name)
     params: dict[str, Any] = {
         k: v for k, v in dict(
@@ -78,10 +87,26 @@ async def upload_route(
     ext_config = {"kind": extractor or "patchnorm", **ext} if (extractor or ext) else None
     job = await run_in_threadpool(
         _service(request).submit_route, name, file.filename or "upload", file.file, params,
-        ext_config, idempotency_key,
+        ext_config, idempotency_key, allow_dimension_change=allow_dimension_change, force=force,
     )  # fmt: skip
     response.headers["Location"] = f"/v1/jobs/{job.id}"
+    if job.reused:
+        response.status_code = 200
     return JobOut.model_validate(job)
+
+
+@router.get("/jobs", response_model=JobPage, summary="Training jobs, newest first (paginated)")
+def list_jobs(
+    request: Request,
+    map: Annotated[str | None, Query(description="only this map's jobs")] = None,  # noqa: A002
+    state: Annotated[list[str] | None, Query(
+        description="only jobs in these states (repeatable): queued, running, succeeded, failed"
+    )] = None,
+    limit: Annotated[int, Query(ge=1, le=500, description="jobs per page")] = 50,
+    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+) -> JobPage:
+    jobs, next_cursor = _service(request).list_jobs(map, state, limit, cursor)
+    return JobPage(jobs=[JobOut.model_validate(j) for j in jobs], next_cursor=next_cursor)
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut, summary="A training job's state")

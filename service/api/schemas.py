@@ -110,11 +110,22 @@ class VersionOut(_FromAttrs):
     artifact_bytes: int
     metrics: dict[str, Any]
     job_id: str | None
+    content_sha256: str | None = Field(None, description="sha256 of the route's descriptors")
+    extra: dict[str, Any] = Field(
+        default_factory=dict, description="e.g. dimension_change {from, to, reference_version}"
+    )
 
 
 class MapDetail(MapOut):
     active: VersionOut | None = None
     serving_version: int | None = Field(None, description="version loaded in this process")
+
+
+class JobRetryOut(_FromAttrs):
+    part: str = Field(..., description="chunk-3, classifier, prepare, train or assemble")
+    attempt: int = Field(..., description="the attempt that failed (1 = first run)")
+    error: str
+    at: datetime
 
 
 class JobOut(_FromAttrs):
@@ -131,12 +142,25 @@ class JobOut(_FromAttrs):
     version: int | None
     idempotency_key: str | None
     timings: dict[str, float]
+    content_sha256: str | None = Field(None, description="sha256 of the uploaded descriptors")
+    retries: list[JobRetryOut] = Field(
+        default_factory=list, description="parts that failed and were run again, oldest first"
+    )
+    reused: bool = Field(
+        False, description="an earlier upload's job (same Idempotency-Key, or the same route, "
+        "parameters and extractor): nothing new was queued",
+    )
 
     @computed_field  # type: ignore[prop-decorator]
     @property
     def job_id(self) -> str:
         """The same as ``id``: the name the upload answer is documented with."""
         return self.id
+
+
+class JobPage(BaseModel):
+    jobs: list[JobOut] = Field(..., description="newest first")
+    next_cursor: str | None = Field(None, description="pass as ?cursor= for the next page")
 
 
 class ErrorOut(BaseModel):

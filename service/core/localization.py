@@ -23,6 +23,9 @@ from service.errors import (
     UnavailableError,
 )
 from service.imaging import decode_image, make_extractor, parse_extractor_config
+from service.registry.job_table import MAX_PAGE as MAX_JOB_PAGE
+from service.registry.job_table import encode_cursor
+from service.registry.models import JOB_STATES, RouteSource
 from service.registry.names import check_map_name
 from service.settings import Settings
 
@@ -176,8 +179,16 @@ class LocalizationService:
         params: dict[str, Any],
         extractor: dict[str, Any] | None = None,
         idempotency_key: str | None = None,
+        *,
+        allow_dimension_change: bool = False,
+        force: bool = False,
     ) -> JobInfo:
-        """Validate and store an uploaded route, then queue its training (202 semantics)."""
+        """Validate and store an uploaded route, then queue its training (202 semantics).
+
+        A route of another descriptor width than the map's active version is refused (409)
+        unless ``allow_dimension_change``. The same route with the same parameters and
+        extractor as an earlier upload answers with that upload's job (``reused``; its
+        version when it succeeded) instead of training a copy, unless ``force``."""
         check_map_name(name)
         if idempotency_key is not None and not 1 <= len(idempotency_key) <= 200:
             raise InvalidInputError("Idempotency-Key must be 1-200 characters")
@@ -199,8 +210,13 @@ class LocalizationService:
             raise InvalidInputError(
                 f"n_chunks={model_params.n_chunks} is too many for a {X.shape[0]}-frame route"
             )
+        self.registry.check_width(name, int(X.shape[1]), allow_dimension_change)
         route = store_descriptors(self.settings.data_dir, X, source_kind)  # only valid data lands
-        job = self.backend.submit(name, route.path, model_params, config, idempotency_key)
+        source = RouteSource(content_sha256=route.sha256, n_frames=route.n_frames,
+                             n_features=route.n_features,
+                             allow_dimension_change=allow_dimension_change)  # fmt: skip
+        job = self.backend.submit(name, route.path, model_params, config, idempotency_key,
+                                  source=source, force=force)  # fmt: skip
         self.metrics.jobs_submitted.inc()
         return job
 
@@ -208,6 +224,29 @@ class LocalizationService:
         job = self.backend.get_job(job_id)
         self._observe(job)
         return job
+
+    def list_jobs(
+        self,
+        map_name: str | None = None,
+        states: Sequence[str] | None = None,
+        limit: int = 50,
+        cursor: str | None = None,
+    ) -> tuple[list[JobInfo], str | None]:
+        """Jobs newest first, one page; returns the page and the cursor of the next one."""
+        if map_name is not None:
+            check_map_name(map_name)
+        if not 1 <= limit <= MAX_JOB_PAGE:
+            raise InvalidInputError(f"limit must be 1-{MAX_JOB_PAGE}, got {limit}", limit=limit)
+        bad = sorted(set(states or ()) - set(JOB_STATES))
+        if bad:
+            raise InvalidInputError(
+                f"unknown job state {bad[0]!r}: one of {', '.join(JOB_STATES)}", state=bad[0]
+            )
+        jobs = self.registry.list_jobs(map_name=map_name, states=states or None,
+                                       limit=limit + 1, after=cursor)  # fmt: skip
+        more = len(jobs) > limit
+        jobs = jobs[:limit]
+        return jobs, encode_cursor(jobs[-1]) if more else None
 
     def _observe(self, job: JobInfo) -> None:
         if job.state in ("succeeded", "failed") and job.started_at and job.finished_at:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 from service.encoding import ModelParams
-from service.registry import JobInfo, Registry
+from service.registry import JobInfo, Registry, RouteSource
 from service.settings import Settings
 
 
@@ -22,10 +22,14 @@ class TrainingBackend(Protocol):
         params: ModelParams,
         extractor: dict[str, Any] | None,
         idempotency_key: str | None,
+        *,
+        source: RouteSource | None = None,
+        force: bool = False,
     ) -> JobInfo:
         """Queue training of ``route`` (an ``.npy`` (N, d) file under ``data_dir``) as the next
         version of ``map_name``. The same ``(map_name, idempotency_key)`` again returns the
-        existing job without training twice."""
+        existing job without training twice, and so does the same ``source`` with the same
+        parameters and extractor unless ``force`` (the answer then says ``reused``)."""
         ...
 
     def get_job(self, job_id: str) -> JobInfo: ...
@@ -42,7 +46,11 @@ class TrainingBackend(Protocol):
 
 
 def make_backend(settings: Settings, registry: Registry) -> TrainingBackend:
-    """RQ workers when ``settings.redis_url`` is set, else the embedded process pool."""
+    """RQ workers when ``settings.redis_url`` is set, else the embedded process pool. Either
+    way, workspaces that finished jobs left behind are swept first."""
+    from service.jobs.workspace import sweep_workspaces
+
+    sweep_workspaces(registry)
     if settings.redis_url:
         from service.jobs.rq_backend import RQBackend
 

@@ -32,7 +32,7 @@ from service.encoding import ModelParams
 from service.errors import UnavailableError
 from service.jobs import pipeline
 from service.jobs.workspace import Workspace
-from service.registry import JobInfo, Registry
+from service.registry import JobInfo, Registry, RouteSource
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -84,15 +84,20 @@ class EmbeddedBackend:
         params: ModelParams,
         extractor: dict[str, Any] | None,
         idempotency_key: str | None,
+        *,
+        source: RouteSource | None = None,
+        force: bool = False,
     ) -> JobInfo:
         if self._closed:
             raise UnavailableError("the training backend is shut down")
         job, created = self._registry.create_job(
             map_name, route=route, params=params.model_dump(mode="json"), extractor=extractor,
             backend=BACKEND, idempotency_key=idempotency_key, owner=self._owner,
+            source=source, force=force,
         )  # fmt: skip
-        if created:
-            self._coordinators.submit(self._run, job.id)
+        if not created:
+            return job.model_copy(update={"reused": True})
+        self._coordinators.submit(self._run, job.id)
         return job
 
     def get_job(self, job_id: str) -> JobInfo:

@@ -38,22 +38,30 @@ from service.errors import (
     NonFiniteInputError,
     UnsafeFileError,
 )
-from service.jobs.workspace import Prep, Workspace
+from service.jobs.workspace import JobFinished, Prep, Workspace
 from service.registry import JobSpec, Registry
 
 EVAL_ROWS = 2000  # training-set precision is measured on at most this many frames
 _BLOCK = 8192
 
 
-class JobFinished(ConflictError):
-    """The job already ended (failed elsewhere, timed out): this step must not continue."""
+_IN_USE: dict[str, Registry] = {}
 
-    code = "job_finished"
+
+def use_registry(registry: Registry) -> None:
+    """Make :func:`registry_for` answer ``registry`` for its data directory in this process
+    (a server whose registry was configured explicitly runs failure callbacks with it)."""
+    _IN_USE[str(registry.data_dir.resolve())] = registry
+
+
+def registry_for(data_dir: str) -> Registry:
+    """One registry handle per data directory and process (workers run many steps): the one
+    this process uses, else one from the settings (``GRIDPLACE_REGISTRY_URL``)."""
+    return _IN_USE.get(str(Path(data_dir).resolve())) or _registry_from_settings(data_dir)
 
 
 @lru_cache(maxsize=8)
-def registry_for(data_dir: str) -> Registry:
-    """One registry handle per data directory and process (workers run many steps)."""
+def _registry_from_settings(data_dir: str) -> Registry:
     return Registry(Path(data_dir), cleanup_grace_s=None)
 
 
@@ -108,6 +116,13 @@ def _started(registry: Registry, job_id: str, stage: str, total: int | None = No
         raise JobFinished(f"job {job_id} already finished; skipping {stage}")
 
 
+def _still_open(registry: Registry, job_id: str, what: str) -> None:
+    """Re-check the job before writing a result: a part that outlived its job (failed or
+    timed out meanwhile, its workspace removed) writes nothing."""
+    if registry.get_job(job_id).done:
+        raise JobFinished(f"job {job_id} finished while {what} trained; result discarded")
+
+
 def _validate(params: ModelParams, n_features: int, sizes: list[int]) -> None:
     """Fail before any training for parameters that cannot fit this route."""
     encoder = cast(PhaseEncoder, build_model(params.model_copy(update={"n_chunks": 1})))
@@ -127,7 +142,7 @@ def train_single(data_dir: Path, job_id: str) -> int:
     _validate(params, X.shape[1], [X.shape[0]])
     model = build_model(params).fit(_rows(X, 0, X.shape[0]))
     fit_s = time.perf_counter() - start
-    registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s})
+    registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s}, part="train")
     version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s})
     registry.finish_job(job_id, version, timings)
     return version
@@ -144,7 +159,8 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
     bounds = plan_chunks(X.shape[0], params.n_chunks)
     _validate(params, X.shape[1], np.diff(bounds).tolist())
     Workspace(data_dir, job_id).save_prep(Prep(Normalizer.fit(X), bounds))
-    registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start})
+    registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start},
+                             part="prepare")  # fmt: skip
     return {"n_frames": int(X.shape[0]), "n_features": int(X.shape[1]),
             "n_chunks": params.n_chunks}  # fmt: skip
 
@@ -156,12 +172,15 @@ def train_chunk(data_dir: Path, job_id: str, chunk: int) -> float:
     start = time.perf_counter()
     workspace = Workspace(data_dir, job_id)
     prep = workspace.load_prep()
-    s, e = int(prep.bounds[chunk]), int(prep.bounds[chunk + 1])
-    X = open_route(registry.route_path(spec))
-    encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump())
-    workspace.save_chunk(chunk, encoder)
+    if not workspace.has_chunk(chunk):  # else an earlier run finished it, unrecorded
+        s, e = int(prep.bounds[chunk]), int(prep.bounds[chunk + 1])
+        X = open_route(registry.route_path(spec))
+        encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump())
+        _still_open(registry, job_id, f"chunk {chunk}")
+        workspace.save_chunk(chunk, encoder)
     seconds = time.perf_counter() - start
-    registry.record_progress(job_id, chunks_done_delta=1, timings={f"chunk_{chunk}": seconds})
+    registry.record_progress(job_id, chunks_done_delta=1, timings={f"chunk_{chunk}": seconds},
+                             part=f"chunk-{chunk}")  # fmt: skip
     return seconds
 
 
@@ -174,9 +193,11 @@ def train_classifier(data_dir: Path, job_id: str) -> float:
     prep = workspace.load_prep()
     X = open_route(registry.route_path(spec))
     classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump())
+    _still_open(registry, job_id, "the chunk classifier")
     workspace.save_classifier(classifier, X.shape[1])
     seconds = time.perf_counter() - start
-    registry.record_progress(job_id, chunks_done_delta=1, timings={"chunk_classifier": seconds})
+    registry.record_progress(job_id, chunks_done_delta=1, timings={"chunk_classifier": seconds},
+                             part="classifier")  # fmt: skip
     return seconds
 
 
@@ -236,8 +257,12 @@ def _publish(
     )
     if registry.get_job(spec.job_id).done:  # timed out or failed meanwhile: publish nothing
         raise JobFinished(f"job {spec.job_id} finished before its version was published")
+    source = spec.source
     info = registry.publish(
         spec.map, model, params=params.model_dump(mode="json"), extractor=spec.extractor,
         metrics=metrics, job_id=spec.job_id,
+        content_sha256=None if source is None else source.content_sha256,
+        # checked at upload; a job without a recorded upload (library use) is not re-checked
+        allow_dimension_change=True if source is None else source.allow_dimension_change,
     )  # fmt: skip
     return info.version, {"evaluate": eval_s, "publish": time.perf_counter() - start}

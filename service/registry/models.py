@@ -8,6 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 JobState = Literal["queued", "running", "succeeded", "failed"]
+JOB_STATES: tuple[str, ...] = ("queued", "running", "succeeded", "failed")
 TERMINAL_STATES: frozenset[str] = frozenset({"succeeded", "failed"})
 
 
@@ -80,6 +81,10 @@ class JobInfo(BaseModel):
     content_sha256: str | None = None
     retries: list[JobRetry] = Field(
         default_factory=list, description="parts that failed and were run again, oldest first"
+    )
+    reused: bool = Field(
+        False, description="answered for a repeated upload (same Idempotency-Key, or the same "
+        "route, parameters and extractor): nothing new was queued",
     )
 
     @property

@@ -12,7 +12,7 @@ from typing import Any, Literal
 from pydantic import BaseModel
 
 from service.encoding import ModelParams, PlaceRecognizer, build_model, load_npy
-from service.errors import ConflictError, NotFoundError, UnavailableError
+from service.errors import ConflictError, DimensionChangeError, NotFoundError, UnavailableError
 
 
 class VersionInfo(BaseModel):
@@ -123,6 +123,19 @@ class FakeRegistry:
     def generation(self) -> int:
         return self._gen
 
+    def check_width(self, name: str, n_features: int, allow_change: bool) -> dict[str, Any] | None:
+        m = self._maps.get(name)
+        if m is None or not m.versions:
+            return None
+        ref = m.active_version or max(m.versions)
+        width = self._versions[(name, ref)].n_features
+        if width == n_features:
+            return None
+        if not allow_change:
+            raise DimensionChangeError(f"map {name!r} version {ref} takes d={width}, not "
+                                       f"d={n_features}", expected=width, got=n_features)  # fmt: skip
+        return {"from": width, "to": n_features, "reference_version": ref}
+
     def publish(self, name: str, model: PlaceRecognizer, *, params: dict[str, Any],
                 extractor: dict[str, Any] | None, metrics: dict[str, Any],
                 job_id: str | None, activate: bool | None = None) -> VersionInfo:  # fmt: skip
@@ -165,7 +178,8 @@ class InlineBackend:
             raise UnavailableError("the training queue (Redis) is unreachable")
 
     def submit(self, map_name: str, route: Path, params: ModelParams,
-               extractor: dict[str, Any] | None, idempotency_key: str | None) -> JobInfo:  # fmt: skip
+               extractor: dict[str, Any] | None, idempotency_key: str | None, *,
+               source: Any = None, force: bool = False) -> JobInfo:  # fmt: skip
         self.check_available()
         for job in self.jobs.values():
             if idempotency_key and (job.map, job.idempotency_key) == (map_name, idempotency_key):

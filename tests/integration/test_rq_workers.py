@@ -33,6 +33,7 @@ from service.jobs import make_backend
 from service.jobs.rq_backend import RQBackend
 from service.jobs.rq_tasks import SERIALIZER, part_ids
 from service.registry import JobInfo, Registry
+from service.registry.scratch import ScratchDatabase
 from service.settings import Settings
 
 
@@ -86,18 +87,27 @@ def _children(pid: int) -> list[int]:
 class Workers:
     """Real ``gridplace worker`` subprocesses, each in its own process group."""
 
-    def __init__(self, redis_url: str, queue: str, n: int) -> None:
+    def __init__(self, redis_url: str, queue: str, n: int, env: dict[str, str] | None = None,
+                 log_dir: Path | None = None) -> None:  # fmt: skip
         self.redis = Redis.from_url(redis_url)
         self.queue = queue
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.logs: dict[str, Path] = {}
         for i in range(n):
             name = f"{queue}-w{i}"
+            out = subprocess.DEVNULL
+            if log_dir is not None:
+                self.logs[name] = log_dir / f"{name}.log"
+                out = open(self.logs[name], "wb")  # noqa: SIM115 - owned by the child
             self.procs[name] = subprocess.Popen(
                 [sys.executable, "-m", "service.cli", "worker", "--redis-url", redis_url,
                  "--queue", queue, "--name", name, "--monitoring-interval", "1",
                  "--heartbeat-grace", "2", "--maintenance-interval", "2"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                env={**os.environ, **(env or {})},
             )  # fmt: skip
+            if out is not subprocess.DEVNULL:
+                out.close()
         deadline = time.monotonic() + 60
         while len(Worker.all(connection=self.redis)) < len(self.procs) or not self._all_listed():
             if time.monotonic() > deadline:
@@ -131,16 +141,23 @@ class Workers:
 
 
 @pytest.fixture()
-def workers(redis_url: str) -> Iterator[Callable[[str, int], Workers]]:
+def workers(redis_url: str) -> Iterator[Callable[..., Workers]]:
     started: list[Workers] = []
 
-    def start(queue: str, n: int = 2) -> Workers:
-        started.append(Workers(redis_url, queue, n))
+    def start(queue: str, n: int = 2, url: str | None = None, **kw: object) -> Workers:
+        started.append(Workers(url or redis_url, queue, n, **kw))  # type: ignore[arg-type]
         return started[-1]
 
     yield start
     for w in started:
         w.stop()
+
+
+@pytest.fixture(scope="module")
+def pg_registry_url() -> Iterator[str]:
+    """A scratch PostgreSQL database for the registry (dropped after the module)."""
+    with ScratchDatabase() as url:
+        yield url
 
 
 @pytest.fixture()
@@ -156,9 +173,12 @@ def _route(data_dir: Path, n: int, d: int, seed: int = 0) -> Path:
     return path
 
 
-def _backend(data_dir: Path, redis_url: str, queue: str) -> tuple[RQBackend, Registry]:
-    registry = Registry(data_dir)
-    settings = Settings(data_dir=data_dir, redis_url=redis_url, queue_name=queue)
+def _backend(data_dir: Path, redis_url: str, queue: str, registry_url: str | None = None,
+             **settings_kw: object) -> tuple[RQBackend, Registry]:  # fmt: skip
+    registry = Registry(data_dir, url=registry_url)
+    settings_kw = {"job_retry_backoff_s": 1, "reconcile_interval_s": 0, **settings_kw}
+    settings = Settings(data_dir=data_dir, redis_url=redis_url, queue_name=queue,
+                        **settings_kw)  # type: ignore[arg-type]  # fmt: skip
     backend = make_backend(settings, registry)
     assert isinstance(backend, RQBackend)
     return backend, registry
@@ -223,69 +243,84 @@ def test_unchunked_route_and_a_failing_route(data_dir, redis_url, workers):
     backend.close()
 
 
-def test_killed_worker_fails_the_job_and_publishes_nothing(data_dir, redis_url, workers):
-    queue = f"q-{uuid.uuid4().hex[:8]}"
-    pool = workers(queue, 2)
-    backend, registry = _backend(data_dir, redis_url, queue)
-    route = _route(data_dir, 1200, 256, seed=3)  # chunk parts take about a second each
-    params = ModelParams.parse(trainer="logreg", n_chunks=2)
-    job = backend.submit("doomed", route, params, None, None)
+def _running_chunk(backend: RQBackend, job_id: str, chunk_ids: set[str]) -> Job:
     started = StartedJobRegistry(queue=backend.queue)
-    chunk_ids = {part_ids(job.id, 2)[f"chunk-{c}"] for c in range(2)}
-    victim = None
     deadline = time.monotonic() + 60
-    while victim is None:
-        assert time.monotonic() < deadline, f"no chunk part started: {backend.get_job(job.id)}"
+    while True:
+        assert time.monotonic() < deadline, f"no chunk part started: {backend.get_job(job_id)}"
         running = chunk_ids & set(started.get_job_ids(cleanup=False))
         if running:
             part = Job.fetch(min(running), connection=backend.queue.connection,
                              serializer=SERIALIZER)  # fmt: skip
-            victim = part.worker_name
-        else:
-            time.sleep(0.02)
-    assert victim in pool.procs
-    pool.kill(victim)  # mid-chunk: no exception handler, no callback, no heartbeat
-    done = _wait(backend, job.id, timeout=60)
-    assert done.state == "failed", done
-    assert "heartbeat" in done.error or "abandon" in done.error.lower()
-    assert done.version is None
-    time.sleep(1.5)  # the surviving worker finished its parts; the assembly must never run
-    assert registry.version_for_job(job.id) is None
-    with pytest.raises(NotFoundError):
-        registry.get_map("doomed")
-    assert not (data_dir / "artifacts" / "doomed").exists() or not any(
-        p.name.startswith("v") for p in (data_dir / "artifacts" / "doomed").iterdir()
-    )
-    assert backend.queue_depth() == 0
+            if part.worker_name:
+                return part
+        time.sleep(0.02)
+
+
+def test_a_worker_killed_mid_chunk_is_retried_and_the_route_publishes(
+    data_dir, redis_url, workers, pg_registry_url
+):
+    """SIGKILL of a `gridplace worker` (and its training process) mid-chunk, on a PostgreSQL
+    registry: the chunk runs again on the other worker, the version is published, and the
+    job shows the retry."""
+    queue = f"q-{uuid.uuid4().hex[:8]}"
+    pool = workers(queue, 2, env={"GRIDPLACE_REGISTRY_URL": pg_registry_url})
+    backend, registry = _backend(data_dir, redis_url, queue, pg_registry_url)
+    route = _route(data_dir, 1200, 256, seed=3)  # chunk parts take about a second each
+    params = ModelParams.parse(trainer="logreg", n_chunks=2)
+    job = backend.submit("survivor", route, params, None, None)
+    chunk_ids = {part_ids(job.id, 2)[f"chunk-{c}"] for c in range(2)}
+    part = _running_chunk(backend, job.id, chunk_ids)
+    assert part.worker_name in pool.procs
+    pool.kill(part.worker_name)  # mid-chunk: no exception handler, no callback, no heartbeat
+    done = _wait(backend, job.id, timeout=90)
+    assert done.state == "succeeded", done
+    assert done.version == 1 and done.chunks_done == done.chunks_total == 3
+    killed = part.id.removeprefix(f"gridplace-{job.id}-")
+    assert [(r.part, r.attempt) for r in done.retries] == [(killed, 1)]
+    assert "heartbeat" in done.retries[0].error
+    X = np.load(route)
+    served = registry.load_model("survivor", 1)
+    np.testing.assert_array_equal(served.predict(X[::5]), build_model(params).fit(X).predict(X[::5]))
+    assert not (data_dir / "jobs" / job.id).exists()
     backend.close()
 
 
-def test_killed_training_process_fails_the_job_at_once(data_dir, redis_url, workers):
-    """The OOM-killer case: the work horse dies, its worker survives and reports it."""
+def test_a_chunk_killed_on_every_attempt_fails_the_route_with_its_error(
+    data_dir, redis_url, workers
+):
+    """The OOM-killer case on every attempt: the work horse dies, its worker survives and
+    reports it; after the last retry the route fails with the chunk's error, no version."""
     queue = f"q-{uuid.uuid4().hex[:8]}"
     pool = workers(queue, 1)
-    backend, registry = _backend(data_dir, redis_url, queue)
+    backend, registry = _backend(data_dir, redis_url, queue, job_retries=1)
     route = _route(data_dir, 1200, 256, seed=4)
     job = backend.submit("oom", route, ModelParams.parse(trainer="logreg", n_chunks=2), None, None)
     proc = next(iter(pool.procs.values()))
-    chunk_ids = {part_ids(job.id, 2)[f"chunk-{c}"] for c in range(2)}
-    started = StartedJobRegistry(queue=backend.queue)
-    deadline = time.monotonic() + 60
-    while not chunk_ids & set(started.get_job_ids(cleanup=False)):
-        assert time.monotonic() < deadline, f"no chunk part started: {backend.get_job(job.id)}"
-        time.sleep(0.02)
-    while not (horses := _children(proc.pid)):  # the part is registered just before the fork
-        assert time.monotonic() < deadline, "the worker runs its job in a forked work horse"
-        time.sleep(0.01)
-    for pid in horses:
-        os.kill(pid, signal.SIGKILL)
+    victim = part_ids(job.id, 2)["chunk-0"]
+    for attempt in (1, 2):
+        _running_chunk(backend, job.id, {victim})
+        deadline = time.monotonic() + 30
+        while not (horses := _children(proc.pid)):  # registered just before the fork
+            assert time.monotonic() < deadline, "the worker runs its job in a forked work horse"
+            time.sleep(0.01)
+        for pid in horses:
+            os.kill(pid, signal.SIGKILL)
+        while len(registry.get_job(job.id).retries) < attempt and attempt == 1:
+            assert time.monotonic() < deadline, registry.get_job(job.id)
+            time.sleep(0.02)
     deadline = time.monotonic() + 30
     while not (got := registry.get_job(job.id)).done:  # no polling of the backend needed
         assert time.monotonic() < deadline, got
         time.sleep(0.05)
-    assert got.state == "failed" and "killed by signal 9" in got.error, got.error
+    assert got.state == "failed" and got.error.startswith("chunk-0 failed")
+    assert "killed by signal 9" in got.error, got.error
+    assert [(r.part, r.attempt) for r in got.retries] == [("chunk-0", 1)]
     assert registry.version_for_job(job.id) is None
+    with pytest.raises(NotFoundError):
+        registry.get_map("oom")
     assert proc.poll() is None  # the worker itself lives on
+    assert backend.queue_depth() == 0
     backend.close()
 
 
