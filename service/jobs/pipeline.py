@@ -31,7 +31,6 @@ from service.encoding.encoder import PhaseEncoder
 from service.encoding.normalization import Normalizer
 from service.encoding.phases import validate_periods
 from service.errors import (
-    ConflictError,
     DimensionMismatchError,
     EmptyInputError,
     GridplaceError,
