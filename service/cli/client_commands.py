@@ -226,7 +226,11 @@ def upload(
 @app.command()
 @cli_errors
 def jobs(
-    job_ids: Annotated[list[str], typer.Argument(metavar="JOB_ID...", help="job ids")],
+    job_ids: Annotated[list[str] | None, typer.Argument(
+        metavar="[JOB_ID...]", help="job ids; none: list the newest jobs")] = None,
+    map_name: Annotated[str | None, typer.Option("--map", help="list only this map's")] = None,
+    state: Annotated[list[str] | None, typer.Option(help="list only these states")] = None,
+    limit: Annotated[int, typer.Option(min=1, max=500, help="jobs to list")] = 20,
     wait: Annotated[
         bool, typer.Option("--wait/--no-wait", help="wait until each job ends")
     ] = False,
@@ -236,11 +240,14 @@ def jobs(
     timeout: Timeout = 30.0,
     as_json: AsJson = False,
 ) -> None:
-    """Show training jobs (state, stage, chunk progress, version); exit 2 if one failed."""
+    """Show training jobs (state, stage, chunk progress, retries, version); exit 2 if one of
+    the given jobs failed. Without ids: the newest jobs (--map, --state, --limit)."""
     with _client(url, token, timeout) as gp:
-        found = [
-            (_wait(gp, gp.get_job(j), wait_timeout) if wait else gp.get_job(j)) for j in job_ids
-        ]
+        if not job_ids:
+            found = gp.list_jobs(map_name, state, limit).jobs
+        else:
+            found = [(_wait(gp, gp.get_job(j), wait_timeout) if wait else gp.get_job(j))
+                     for j in job_ids]  # fmt: skip
     if as_json:
         _print_json(found)
     else:
@@ -251,6 +258,7 @@ def jobs(
             "state",
             "stage",
             "chunks",
+            "retries",
             "version",
             "created",
             "finished",
@@ -259,11 +267,11 @@ def jobs(
             table.add_column(col)
         for j in found:
             table.add_row(j.id, j.map, j.state, j.stage, f"{j.chunks_done}/{j.chunks_total}",
-                          str(j.version) if j.version is not None else "-", _when(j.created_at),
+                          str(len(j.retries)), str(j.version) if j.version is not None else "-", _when(j.created_at),
                           _when(j.finished_at), j.error or "")  # fmt: skip
         console.print(table)
     failed = [j.id for j in found if j.state == "failed"]
-    if failed:
+    if failed and job_ids:
         raise JobFailedError(f"failed: {', '.join(failed)}")
 
 

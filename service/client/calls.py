@@ -25,6 +25,7 @@ from service.client.models import (
     BatchLocalization,
     Health,
     Job,
+    JobPage,
     Localization,
     MapDetail,
     MapSummary,
@@ -201,6 +202,18 @@ def upload_route(
 
 def get_job(job_id: str) -> Call[Job]:
     return Call("GET", f"/v1/jobs/{_seg(job_id)}", _reader(Job), admin=True)
+
+
+def list_jobs(map_name: str | None = None, states: Sequence[str] | None = None,
+              limit: int = 50, cursor: str | None = None) -> Call[JobPage]:  # fmt: skip
+    params: dict[str, Any] = {"limit": limit}
+    if map_name is not None:
+        params["map"] = map_name
+    if states:
+        params["state"] = list(states)
+    if cursor is not None:
+        params["cursor"] = cursor
+    return Call("GET", "/v1/jobs", _reader(JobPage), admin=True, kwargs={"params": params})
 
 
 def list_maps() -> Call[list[MapSummary]]:

@@ -31,6 +31,7 @@ from service.client.models import (
     BatchLocalization,
     Health,
     Job,
+    JobPage,
     Localization,
     MapDetail,
     MapSummary,
@@ -164,6 +165,11 @@ class GridplaceClient:
 
     def get_job(self, job_id: str) -> Job:
         return self._send(calls.get_job(job_id))
+
+    def list_jobs(self, map: str | None = None, states: Sequence[str] | None = None,
+                  limit: int = 50, cursor: str | None = None) -> JobPage:  # fmt: skip
+        """One page of training jobs, newest first (``next_cursor`` fetches the next)."""
+        return self._send(calls.list_jobs(map, states, limit, cursor))
 
     def wait_for_job(self, job_id: str, timeout: float = 600.0, poll_interval: float = 0.25,
                      on_update: JobCallback | None = None) -> Job:  # fmt: skip

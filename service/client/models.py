@@ -82,6 +82,13 @@ class MapDetail(MapSummary):
     serving_version: int | None = None
 
 
+class JobRetry(_Answer):
+    part: str
+    attempt: int
+    error: str
+    at: datetime
+
+
 class Job(_Answer):
     id: str
     map: str
@@ -96,6 +103,9 @@ class Job(_Answer):
     version: int | None
     idempotency_key: str | None
     timings: dict[str, float] = Field(default_factory=dict)
+    content_sha256: str | None = None
+    retries: list[JobRetry] = Field(default_factory=list)
+    reused: bool = False
 
     @property
     def done(self) -> bool:
@@ -104,6 +114,11 @@ class Job(_Answer):
     @property
     def succeeded(self) -> bool:
         return self.state == "succeeded"
+
+
+class JobPage(_Answer):
+    jobs: list[Job]
+    next_cursor: str | None = None
 
 
 class TrainingOptions(BaseModel):
@@ -135,6 +150,10 @@ class TrainingOptions(BaseModel):
     cells_per_block: int | None = Field(default=None, ge=1)
     arch: str | None = None
     weights: str | None = Field(default=None, description="a path on the server")
+    allow_dimension_change: bool | None = Field(
+        default=None, description="accept another descriptor width than the active version's"
+    )
+    force: bool | None = Field(default=None, description="train a repeated upload again")
 
     @model_validator(mode="after")
     def _periods(self) -> TrainingOptions:
@@ -146,5 +165,8 @@ class TrainingOptions(BaseModel):
         """The multipart form fields (only the options that were set)."""
         out: dict[str, str] = {}
         for key, value in self.model_dump(exclude_none=True).items():
-            out[key] = ",".join(str(p) for p in value) if key == "periods" else str(value)
+            if key == "periods":
+                out[key] = ",".join(str(p) for p in value)
+            else:
+                out[key] = str(value).lower() if isinstance(value, bool) else str(value)
         return out

@@ -262,7 +262,11 @@ class LocalizationService:
         list_jobs = getattr(self.registry, "list_jobs", None)
         if list_jobs is None:
             return
-        for job in list_jobs(states=("succeeded", "failed"), limit=200):
+        try:
+            jobs = list_jobs(states=("succeeded", "failed"), limit=200)
+        except UnavailableError:  # the registry is down: a scrape still answers
+            return
+        for job in jobs:
             self._observe(job)
 
     def queue_depth(self) -> int | None:

@@ -160,9 +160,18 @@ class ModelStore:
             self._thread = None
 
     def _run(self) -> None:
+        down = False  # the registry is unreachable: serve what is loaded, say so once
         while not self._stop.is_set():
             try:
                 self.refresh()
+                if down:
+                    log.warning("the registry is reachable again; checking for activations")
+                    down = False
+            except GridplaceError as exc:
+                if not down:
+                    log.warning("cannot check the registry (%s); serving the loaded versions "
+                                "until it answers", exc.message)  # fmt: skip
+                    down = True
             except Exception:  # a registry hiccup must not kill the poller
                 log.exception("model store refresh failed")
             self._stop.wait(self._interval)
