@@ -42,6 +42,23 @@ def test_compose_services_ports_env_and_volumes() -> None:
     assert "container_name" not in services["worker"] and "ports" not in services["worker"]
 
 
+def test_compose_keeps_the_registry_in_postgres_and_only_artifacts_on_the_volume() -> None:
+    compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+    services = compose["services"]
+    pg = services["postgres"]
+    assert pg["image"].startswith("postgres:") and "pg_isready" in pg["healthcheck"]["test"]
+    db = pg["environment"]["POSTGRES_DB"]
+    for name in ("api", "worker"):
+        env = services[name]["environment"]
+        url = env["GRIDPLACE_REGISTRY_URL"]
+        assert url.startswith("postgresql://") and url.endswith(f"@postgres:5432/{db}")
+        assert "GRIDPLACE_REGISTRY_JOURNAL_MODE" not in env  # SQLite only
+        assert services[name]["depends_on"]["postgres"]["condition"] == "service_healthy"
+    pg_volumes = {v.split(":")[0] for v in pg["volumes"]}
+    app_volumes = {v.split(":")[0] for n in ("api", "worker") for v in services[n]["volumes"]}
+    assert pg_volumes.isdisjoint(app_volumes)  # the database is not on the shared data volume
+
+
 def test_kubernetes_manifests() -> None:
     k8s = ROOT / "deploy" / "k8s"
     kustom = yaml.safe_load((k8s / "kustomization.yaml").read_text())
@@ -70,6 +87,29 @@ def test_kubernetes_manifests() -> None:
                 for e in c.get("env", []):
                     if e["name"].startswith("GRIDPLACE_"):
                         assert e["name"] in SETTINGS_ENV
+
+
+def test_kubernetes_registry_is_postgres_from_a_secret_and_the_rwx_volume_holds_artifacts() -> None:
+    k8s = ROOT / "deploy" / "k8s"
+    kustom = yaml.safe_load((k8s / "kustomization.yaml").read_text())
+    docs = [d for f in kustom["resources"] for d in load_all(k8s / f)]
+    pg = next(d for d in docs if d["kind"] == "StatefulSet")
+    assert pg["metadata"]["name"] == "gridplace-postgres"
+    claim = pg["spec"]["volumeClaimTemplates"][0]["spec"]
+    assert claim["accessModes"] == ["ReadWriteOnce"]  # the database's own volume, not RWX
+    assert ("Service", "gridplace-postgres") in {(d["kind"], d["metadata"]["name"]) for d in docs}
+    config = next(d for d in docs if d["kind"] == "ConfigMap")["data"]
+    assert "GRIDPLACE_REGISTRY_JOURNAL_MODE" not in config
+    assert "GRIDPLACE_REGISTRY_URL" not in config  # holds a password: a Secret
+    for name in ("gridplace-api", "gridplace-worker"):
+        dep = next(d for d in docs if d["kind"] == "Deployment" and d["metadata"]["name"] == name)
+        env = {e["name"]: e for e in dep["spec"]["template"]["spec"]["containers"][0]["env"]}
+        ref = env["GRIDPLACE_REGISTRY_URL"]["valueFrom"]["secretKeyRef"]
+        assert ref == {"name": "gridplace-registry", "key": "url"}
+    readme = (ROOT / "deploy" / "README.md").read_text()
+    assert "gridplace-registry" in readme and "ReadWriteMany" in readme
+    for env_name in SETTINGS_ENV:  # every setting is in the README's table
+        assert f"`{env_name}`" in readme or env_name in readme, env_name
 
 
 def test_dockerfile_matches_the_settings() -> None:
