@@ -25,6 +25,23 @@ def bench_train(
     run_train_bench(n_frames, n_features, patterns, rho, trainers.split(","), out)
 
 
+@app.command("workers")
+def bench_workers(
+    n_frames: Annotated[int, typer.Option(help="route length N (Nordland when present)")] = 3576,
+    n_features: Annotated[int, typer.Option(help="d of the SYNTHETIC route without Nordland")] = 2048,
+    chunks: Annotated[int, typer.Option(help="n_chunks")] = 8,
+    workers: Annotated[int, typer.Option(help="workers of the scaled run")] = 2,
+    trainer: Annotated[str, typer.Option()] = "ridge",
+    registry_url: Annotated[str | None, typer.Option(
+        help="PostgreSQL registry (default: a scratch database on GRIDPLACE_TEST_POSTGRES_URL)")] = None,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-workers.json"),
+) -> None:
+    """A chunked route trained by 1 and by N RQ workers on a PostgreSQL registry (one run)."""
+    from service.bench.workers_bench import run_workers_bench
+
+    run_workers_bench(n_frames, n_features, chunks, workers, trainer, registry_url, out)
+
+
 @app.command("serve")
 def bench_serve(
     n_frames: Annotated[int, typer.Option(help="route length N of the served map")] = 10_000,
