@@ -147,8 +147,8 @@ class JobOut(_FromAttrs):
         default_factory=list, description="parts that failed and were run again, oldest first"
     )
     reused: bool = Field(
-        False, description="an earlier upload's job (same Idempotency-Key, or the same route, "
-        "parameters and extractor): nothing new was queued",
+        False, description="an earlier upload's job (the same route, parameters and "
+        "extractor): nothing new was queued",
     )
 
     @computed_field  # type: ignore[prop-decorator]

@@ -29,7 +29,7 @@ class TrainingBackend(Protocol):
         """Queue training of ``route`` (an ``.npy`` (N, d) file under ``data_dir``) as the next
         version of ``map_name``. The same ``(map_name, idempotency_key)`` again returns the
         existing job without training twice, and so does the same ``source`` with the same
-        parameters and extractor unless ``force`` (the answer then says ``reused``)."""
+        parameters and extractor unless ``force`` (that answer says ``reused``)."""
         ...
 
     def get_job(self, job_id: str) -> JobInfo: ...

@@ -95,9 +95,8 @@ class EmbeddedBackend:
             backend=BACKEND, idempotency_key=idempotency_key, owner=self._owner,
             source=source, force=force,
         )  # fmt: skip
-        if not created:
-            return job.model_copy(update={"reused": True})
-        self._coordinators.submit(self._run, job.id)
+        if created:
+            self._coordinators.submit(self._run, job.id)
         return job
 
     def get_job(self, job_id: str) -> JobInfo:

@@ -91,7 +91,7 @@ class RQBackend:
             backend=BACKEND, idempotency_key=idempotency_key, source=source, force=force,
         )  # fmt: skip
         if not created:
-            return job.model_copy(update={"reused": True})
+            return job
         try:
             self._enqueue(job.id, params.n_chunks)
         except RedisError as exc:

@@ -127,7 +127,7 @@ class JobTable:
             if fp is not None and not force:
                 same = _same_training(conn, map_name, fp)
                 if same is not None:
-                    return same, False
+                    return same.model_copy(update={"reused": True}), False
             conn.execute(
                 text("INSERT INTO jobs (id, map, state, stage, created_at, idempotency_key, "
                      "spec, backend, owner, content_sha256, fingerprint) VALUES (:id, :m, "

@@ -83,8 +83,8 @@ class JobInfo(BaseModel):
         default_factory=list, description="parts that failed and were run again, oldest first"
     )
     reused: bool = Field(
-        False, description="answered for a repeated upload (same Idempotency-Key, or the same "
-        "route, parameters and extractor): nothing new was queued",
+        False, description="answered for a repeated upload (the same route, parameters and "
+        "extractor as an earlier one): nothing new was queued",
     )
 
     @property

@@ -53,6 +53,7 @@ class JobInfo(BaseModel):
     version: int | None = None
     idempotency_key: str | None = None
     timings: dict[str, float] = {}
+    reused: bool = False
 
 
 class FakeRegistry:
