@@ -211,6 +211,11 @@ class RQBackend:
             return ("is no longer known to the queue (Redis restarted or flushed?); the job "
                     "cannot finish") if settled else None  # fmt: skip
         status = rq_job.get_status(refresh=False)
+        if status == JobStatus.CANCELED and any(
+            p is not None and p.get_status(refresh=False) == JobStatus.STARTED
+            for p in parts.values()
+        ):  # cancelled by a failing part whose callback is failing the job right now
+            return None
         if status in _FAILED:
             return f"{getattr(status, 'value', status)}: {self._failure_text(rq_job)}"
         if status in _ALIVE or status == JobStatus.FINISHED:
