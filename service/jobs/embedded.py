@@ -3,7 +3,8 @@
 A coordinator thread per running job (at most ``train_workers`` at once; later jobs stay
 ``queued``) drives the pipeline steps through a shared
 :class:`~concurrent.futures.ProcessPoolExecutor` of ``train_workers`` processes started with
-the forkserver method (safe from a threaded server process). A chunked route's chunk
+the forkserver method (safe from a threaded server process); each pool process dies with the
+server, even on ``kill -9`` (see :mod:`service.jobs.pool_process`). A chunked route's chunk
 encoders and its chunk classifier run as separate tasks in parallel; the assembly and
 publication start only when all of them succeeded. Job state is written by the steps into
 the registry, so every API process sees it.
@@ -31,6 +32,7 @@ from typing import Any, TypeVar
 from service.encoding import ModelParams
 from service.errors import UnavailableError
 from service.jobs import pipeline
+from service.jobs.pool_process import init_pool_process, pid_exists
 from service.jobs.workspace import Workspace
 from service.registry import JobInfo, Registry, RouteSource
 from service.settings import Settings
@@ -38,23 +40,6 @@ from service.settings import Settings
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 BACKEND = "embedded"
-
-
-def _init_worker(threads: int) -> None:
-    """Bound each training process's BLAS threads so the pool does not oversubscribe cores."""
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=threads)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 class _JobTimeout(Exception):
@@ -117,13 +102,16 @@ class EmbeddedBackend:
         """Stop accepting jobs, fail the unfinished ones of this process, stop the pool."""
         if self._closed:
             return
-        self._closed = True
+        with self._lock:  # no task is being submitted (a process being spawned) past this point
+            self._closed = True
+            pool, self._pool = self._pool, None
         self._coordinators.shutdown(wait=False, cancel_futures=True)
+        failed = 0
         for job_id, owner in self._registry.job_owners(BACKEND):
             if owner == self._owner:
-                self._registry.fail_job(job_id, "the server shut down before the job finished")
-        with self._lock:
-            pool, self._pool = self._pool, None
+                failed += self._registry.fail_job(job_id, "the server shut down before the job finished")
+        if failed:
+            log.warning("shutting down: %d unfinished training job(s) marked failed", failed)
         if pool is not None:
             _terminate(pool)
 
@@ -136,17 +124,16 @@ class EmbeddedBackend:
                 self._call(deadline, pipeline.train_single, self._data_dir, job_id)
                 return
             self._call(deadline, pipeline.prepare, self._data_dir, job_id)
-            pool = self._get_pool()
-            parts = [pool.submit(pipeline.train_chunk, self._data_dir, job_id, c)
+            parts = [self._submit(pipeline.train_chunk, self._data_dir, job_id, c)
                      for c in range(params.n_chunks)]  # fmt: skip
-            parts.append(pool.submit(pipeline.train_classifier, self._data_dir, job_id))
+            parts.append(self._submit(pipeline.train_classifier, self._data_dir, job_id))
             self._wait_all(parts, deadline)
             self._call(deadline, pipeline.assemble, self._data_dir, job_id)
         except BaseException as exc:  # noqa: BLE001 - every failure ends the job, visibly
             self._fail(job_id, exc)
 
     def _call(self, deadline: float, fn: Any, *args: Any) -> Any:
-        future = self._get_pool().submit(fn, *args)
+        future = self._submit(fn, *args)
         self._wait_all([future], deadline)
         return future.result()
 
@@ -175,7 +162,9 @@ class EmbeddedBackend:
             log.warning("training job %s failed: %s", job_id, message)
         Workspace(self._data_dir, job_id).remove()
 
-    def _get_pool(self) -> ProcessPoolExecutor:
+    def _submit(self, fn: Any, *args: Any) -> Future[Any]:
+        """Submit a task to the pool, started on first use. Under the lock: a submit may spawn
+        a process, and :meth:`close` must see every process it has to stop."""
         with self._lock:
             if self._closed:
                 raise UnavailableError("the training backend is shut down")
@@ -184,9 +173,10 @@ class EmbeddedBackend:
                 ctx.set_forkserver_preload(["service.jobs.pipeline"])
                 threads = max(1, (os.cpu_count() or 1) // self._workers)
                 self._pool = ProcessPoolExecutor(
-                    self._workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,)
-                )
-            return self._pool
+                    self._workers, mp_context=ctx, initializer=init_pool_process,
+                    initargs=(os.getpid(), threads),
+                )  # fmt: skip
+            return self._pool.submit(fn, *args)
 
     def _reset_pool(self) -> None:
         with self._lock:
@@ -204,7 +194,7 @@ class EmbeddedBackend:
         if owner is None or owner == self._owner:
             return
         host, _, pid = owner.rpartition(":")
-        if host != socket.gethostname() or not pid.isdigit() or _pid_alive(int(pid)):
+        if host != socket.gethostname() or not pid.isdigit() or pid_exists(int(pid)):
             return
         if self._registry.fail_job(
             job_id, f"the server process {pid} that ran this job exited before it finished"
