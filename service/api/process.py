@@ -26,8 +26,11 @@ class ServerProcess:
     """``with ServerProcess(data_dir, env={...}) as srv: httpx.get(srv.url + "/healthz")``."""
 
     def __init__(self, data_dir: Path, env: dict[str, str] | None = None, port: int | None = None,
-                 log_path: Path | None = None) -> None:  # fmt: skip
+                 log_path: Path | None = None, new_session: bool = False) -> None:  # fmt: skip
+        """``new_session``: run in its own session and process group, as a shell job is, so
+        :meth:`interrupt` can send Ctrl-C to the server and everything it started."""
         self.data_dir = data_dir
+        self.new_session = new_session
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.env = {**os.environ, "GRIDPLACE_GRPC_PORT": "0", "GRIDPLACE_LOG_LEVEL": "warning",
@@ -40,7 +43,8 @@ class ServerProcess:
                "--port", str(self.port), "--data-dir", str(self.data_dir)]  # fmt: skip
         self.data_dir.mkdir(parents=True, exist_ok=True)
         log = open(self.log_path, "ab")  # noqa: SIM115 - owned by the child
-        self.proc = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT)
+        self.proc = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                     start_new_session=self.new_session)  # fmt: skip
         log.close()
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -76,6 +80,16 @@ class ServerProcess:
         code = self.proc.returncode
         self.proc = None
         return code
+
+    def interrupt(self, sig: int = signal.SIGINT) -> None:
+        """Send ``sig`` to the server's whole process group, as Ctrl-C in a terminal does
+        (only with ``new_session``; otherwise to the server alone)."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        if self.new_session:
+            os.killpg(self.proc.pid, sig)
+        else:
+            self.proc.send_signal(sig)
 
     def log(self) -> str:
         try:

@@ -37,12 +37,11 @@ def serve(
     reload_interval_s: Annotated[float | None, typer.Option(help="hot-swap poll period [GRIDPLACE_RELOAD_INTERVAL_S]")] = None,
     log_level: Annotated[str | None, typer.Option(help="[GRIDPLACE_LOG_LEVEL]")] = None,
 ) -> None:
-    """Serve REST /v1 (OpenAPI at /docs), /healthz, /readyz, /metrics. The admin token is
-    read from GRIDPLACE_ADMIN_TOKEN only (never a flag: it would show in `ps`)."""
-    import uvicorn
-
-    from service.api.app import create_app
-    from service.api.companions import discover_companions
+    """Serve REST /v1 (OpenAPI at /docs), /healthz, /readyz, /metrics, and gRPC. The admin
+    token is read from GRIDPLACE_ADMIN_TOKEN only (never a flag: it would show in `ps`).
+    A port in use ends the command with exit code 2 before anything is served; Ctrl-C or
+    SIGTERM shuts down gracefully (unfinished training jobs are marked failed) with exit 0."""
+    from service.api.serving import serve_forever
 
     overrides = {k: v for k, v in dict(
         host=host, port=port, grpc_port=grpc_port, data_dir=data_dir, redis_url=redis_url,
@@ -55,9 +54,7 @@ def serve(
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")  # fmt: skip
     if settings.admin_token is None and settings.insecure_dev:
         logging.getLogger("gridplace").warning("admin API open WITHOUT a token (insecure_dev)")
-    app = create_app(settings, companions=discover_companions(settings))
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=settings.log_level.lower(),
-                timeout_graceful_shutdown=10)  # fmt: skip
+    serve_forever(settings)
 
 
 def register(app: typer.Typer) -> None:

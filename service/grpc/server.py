@@ -22,6 +22,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 from grpc_health.v1.health import aio as health_aio
 from grpc_reflection.v1alpha import reflection
 
+from service.api.serving import port_in_use
 from service.core.context import ServiceContext
 from service.errors import UnavailableError
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
@@ -59,6 +60,8 @@ class GrpcServer:
         self._thread.start()
         if not self._started.wait(30):
             raise UnavailableError(f"the gRPC server did not start on {self.address}")
+        if isinstance(self._error, UnavailableError):
+            raise self._error
         if self._error is not None:
             raise UnavailableError(f"the gRPC server cannot serve on {self.address}: {self._error}")
         log.info("gRPC %s listening on %s:%s", SERVICE_NAME, self.settings.host, self.port)
@@ -89,6 +92,7 @@ class GrpcServer:
         server = grpc.aio.server(options=[
             ("grpc.max_receive_message_length", limit),
             ("grpc.max_send_message_length", limit),
+            ("grpc.so_reuseport", 0),  # a second server on this port fails instead of sharing it
             ("grpc.keepalive_permit_without_calls", 1),  # vehicles keep idle streams alive
             ("grpc.http2.min_ping_interval_without_data_ms", 10_000),
         ])  # fmt: skip
@@ -101,7 +105,11 @@ class GrpcServer:
             (SERVICE_NAME, health_pb2.DESCRIPTOR.services_by_name["Health"].full_name,
              reflection.SERVICE_NAME), server,
         )  # fmt: skip
-        self.port = server.add_insecure_port(self.address)
+        try:
+            self.port = server.add_insecure_port(self.address)
+        except RuntimeError as exc:
+            raise port_in_use("gRPC", self.settings.host, self.settings.grpc_port,
+                              "--grpc-port or GRIDPLACE_GRPC_PORT (0 = no gRPC)") from exc  # fmt: skip
         await server.start()
         self._stopping = asyncio.Event()
         self._started.set()

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import base64
 import io
-import signal
 import threading
 import time
 import zipfile
@@ -286,9 +285,9 @@ def test_metrics_cover_requests_localize_models_and_jobs(client, synth) -> None:
 
 
 def test_restart_reloads_the_active_versions(server, route, data_dir) -> None:
-    # SIGTERM: graceful shutdown within the timeout (uvicorn re-raises the signal after it)
-    assert server.stop() in (0, -signal.SIGTERM)
-    assert "Traceback" not in server.log()
+    # SIGTERM: a graceful shutdown, then exit 0 (the pool's semaphores released, not leaked)
+    assert server.stop() == 0, server.log()
+    assert "Traceback" not in server.log() and "leaked" not in server.log(), server.log()
     server.start()
     server.wait_ready(30)
     with httpx.Client(base_url=server.url, timeout=30) as c:
