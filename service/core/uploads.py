@@ -9,7 +9,6 @@ decompressed sizes, and on their number of members (zip bombs, tar bombs).
 from __future__ import annotations
 
 import hashlib
-import io
 import os
 import tarfile
 import tempfile
@@ -21,7 +20,8 @@ from typing import IO
 
 import numpy as np
 
-from service.encoding import check_descriptors, load_npy
+from service.core.array_upload import read_npy_descriptors, read_npz_descriptors
+from service.encoding import check_descriptors
 from service.errors import EmptyInputError, PayloadTooLargeError, UnsafeFileError
 from service.imaging import Extractor, extract_blobs, is_image_name
 
@@ -149,12 +149,14 @@ def parse_route(
 ) -> tuple[np.ndarray, str]:
     """The route's float32 ``(N, d)`` descriptors and ``"npy"`` or ``"images"``."""
     fh.seek(0)
-    kind = sniff_kind(filename, fh.read(512))
+    head = fh.read(512)
+    kind = sniff_kind(filename, head)
     fh.seek(0)
     if kind == "npy":
-        raw = load_npy(fh.read(limit_bytes + 1))
-        arr = check_descriptors(raw, min_rows=2, what=f"descriptors in {filename!r}")
-        return arr.astype(np.float32), "npy"
+        what = f"descriptors in {filename!r}"
+        if head.startswith(b"\x93NUMPY"):
+            return read_npy_descriptors(fh, what, limit_bytes), "npy"
+        return read_npz_descriptors(fh, what, limit_bytes), "npy"
     n = _count_images(kind, fh)
     if n == 0:
         raise EmptyInputError(f"the archive {filename!r} contains no image files")
@@ -172,29 +174,42 @@ def parse_route(
     return arr.astype(np.float32), "images"
 
 
+class _HashingWriter:
+    """A write-only file that hashes what passes through it (``np.save`` writes in blocks)."""
+
+    def __init__(self, out: IO[bytes]) -> None:
+        self.out = out
+        self.sha = hashlib.sha256()
+
+    def write(self, data: bytes) -> int:
+        self.sha.update(data)
+        return self.out.write(data)
+
+
 def store_descriptors(data_dir: Path, X: np.ndarray, source_kind: str) -> StoredRoute:
-    """Write ``X`` to ``data_dir/uploads/<sha256>.npy`` atomically (tmp, fsync, rename)."""
-    buf = io.BytesIO()
-    np.save(buf, np.ascontiguousarray(X, dtype=np.float32), allow_pickle=False)
-    data = buf.getvalue()
-    sha = hashlib.sha256(data).hexdigest()
+    """Write ``X`` to ``data_dir/uploads/<sha256 of the .npy>.npy`` atomically (tmp, fsync,
+    rename), streamed and hashed on the way: no copy of the route is made in memory."""
     folder = data_dir / "uploads"
     folder.mkdir(parents=True, exist_ok=True)
-    final = folder / f"{sha}.npy"
-    if not final.exists():
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".upload-", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as out:
-                out.write(data)
-                out.flush()
-                os.fsync(out.fileno())
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".upload-", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            writer = _HashingWriter(out)
+            np.save(writer, np.ascontiguousarray(X, dtype=np.float32), allow_pickle=False)  # type: ignore[arg-type]
+            out.flush()
+            os.fsync(out.fileno())
+        sha = writer.sha.hexdigest()
+        final = folder / f"{sha}.npy"
+        if final.exists():
+            Path(tmp).unlink()
+        else:
             os.replace(tmp, final)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        dfd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dfd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
     return StoredRoute(final, sha, int(X.shape[0]), int(X.shape[1]), source_kind)
