@@ -25,7 +25,25 @@ class Settings(BaseSettings):
     insecure_dev: bool = Field(
         False, description="allow admin calls without a token (development only)"
     )
-    max_upload_mb: int = Field(512, ge=1, description="largest accepted upload (MiB)")
+    max_upload_mb: int = Field(
+        512, ge=1, description="largest admin upload (MiB), and the most memory its descriptors "
+        "may take as float32 once decompressed",
+    )  # fmt: skip
+    max_public_body_mb: int = Field(
+        16, ge=1, description="largest body of a public REST request (localize) and of a gRPC "
+        "Localize message (MiB)",
+    )  # fmt: skip
+    max_request_megapixels: float = Field(
+        256.0, gt=0, description="most image pixels one request (or stream frame) may make the "
+        "server decode, summed over its images (millions)",
+    )  # fmt: skip
+    max_stream_frame_kb: int = Field(
+        1024, ge=1, description="largest gRPC LocalizeStream message (KiB)"
+    )
+    grpc_workers: int = Field(
+        4, ge=2, description="threads running gRPC requests' CPU work off the event loop "
+        "(unary Localize calls get at most half of them; streams keep the rest)",
+    )  # fmt: skip
     train_workers: int = Field(2, ge=1, description="embedded training processes")
     job_timeout_s: int = Field(6 * 3600, ge=1, description="a training job's time limit")
     job_retries: int = Field(

@@ -66,7 +66,9 @@ def create_app(
     app.include_router(routes_localize.router)
     app.include_router(routes_admin.router)
     app.include_router(routes_health.router)
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 1024 * 1024)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 1024 * 1024,
+                       public_max_bytes=settings.max_public_body_mb * 1024 * 1024,
+                       admin_prefixes=AdminGate.PREFIXES)  # fmt: skip
     app.add_middleware(AdminGate, settings=settings)  # before any admin body is read
     app.add_middleware(HttpMetrics, registry=ctx.metrics.registry)  # outermost: counts 413s too
     return app

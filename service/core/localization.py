@@ -20,9 +20,10 @@ from service.errors import (
     DimensionMismatchError,
     EmptyInputError,
     InvalidInputError,
+    PayloadTooLargeError,
     UnavailableError,
 )
-from service.imaging import decode_image, make_extractor, parse_extractor_config
+from service.imaging import extract_blobs, image_pixels, make_extractor, parse_extractor_config
 from service.registry.job_table import MAX_PAGE as MAX_JOB_PAGE
 from service.registry.job_table import encode_cursor
 from service.registry.models import JOB_STATES, RouteSource
@@ -151,9 +152,24 @@ class LocalizationService:
                 "without an image extractor; send descriptors, or train from images",
                 map=loaded.map, version=loaded.version,
             )  # fmt: skip
-        decoded = [decode_image(data, label) for label, data in images]
-        return check_descriptors(extractor.extract(decoded), n_features=loaded.n_features,
-                                 what="image descriptors")  # fmt: skip
+        self._check_pixel_budget(images)
+        X = extract_blobs(extractor, images, len(images))  # decoded a small batch at a time
+        return check_descriptors(X, n_features=loaded.n_features, what="image descriptors")
+
+    def _check_pixel_budget(self, images: Sequence[tuple[str, bytes]]) -> None:
+        """413 before any decoding when the images' headers add up to more pixels than one
+        request may make the server decode (``GRIDPLACE_MAX_REQUEST_MEGAPIXELS``)."""
+        budget = int(self.settings.max_request_megapixels * 1_000_000)
+        total = 0
+        for count, (label, data) in enumerate(images, 1):
+            total += image_pixels(data, label)
+            if total > budget:
+                raise PayloadTooLargeError(
+                    f"the request's images hold more than {budget} pixels once decoded (the "
+                    f"first {count} already {total}); the limit is "
+                    f"GRIDPLACE_MAX_REQUEST_MEGAPIXELS={self.settings.max_request_megapixels:g}",
+                    limit_pixels=budget,
+                )  # fmt: skip
 
     def answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
         """Localize validated queries on ``loaded`` and record the metrics (``start``: the

@@ -7,7 +7,7 @@ from service.imaging.config import (
     PatchNormConfig,
     parse_extractor_config,
 )
-from service.imaging.decode import decode_image
+from service.imaging.decode import decode_image, image_pixels
 from service.imaging.extractors import Extractor, make_extractor
 from service.imaging.files import extract_blobs, extract_paths, is_image_name, list_images
 
@@ -20,6 +20,7 @@ __all__ = [
     "decode_image",
     "extract_blobs",
     "extract_paths",
+    "image_pixels",
     "is_image_name",
     "list_images",
     "make_extractor",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import EmptyInputError, InvalidInputError
-from service.imaging.decode import decode_image
+from service.imaging.decode import decode_batches
 from service.imaging.extractors import Extractor
 
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm"})
@@ -37,25 +37,17 @@ def extract_blobs(
     total: int,
     progress: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
-    """Descriptors of ``(name, bytes)`` images, decoded and extracted ``BATCH`` at a time."""
+    """Descriptors of ``(name, bytes)`` images, decoded and extracted a batch at a time (at
+    most ``BATCH`` images and :data:`~service.imaging.decode.BATCH_PIXELS` decoded pixels)."""
     out = np.empty((total, extractor.n_features), dtype=np.float32)
     done = 0
-    batch: list = []
-
-    def flush() -> None:
-        nonlocal done, batch
-        if batch:
-            out[done : done + len(batch)] = extractor.extract(batch)
-            done += len(batch)
-            batch = []
-            if progress is not None:
-                progress(done, total)
-
-    for name, data in blobs:
-        batch.append(decode_image(data, name))
-        if len(batch) >= BATCH:
-            flush()
-    flush()
+    for batch in decode_batches(blobs, BATCH):
+        if done + len(batch) > total:
+            raise InvalidInputError(f"expected {total} images, got more")
+        out[done : done + len(batch)] = extractor.extract(batch)
+        done += len(batch)
+        if progress is not None:
+            progress(done, total)
     if done != total:
         raise InvalidInputError(f"expected {total} images, decoded {done}")
     return out
