@@ -2,9 +2,11 @@
 :class:`~service.core.context.ServiceContext`, its own port ``GRIDPLACE_GRPC_PORT``).
 
 It runs a ``grpc.aio`` server on **its own thread and event loop**, not on uvicorn's: the
-companion hook is synchronous (started and stopped from the app's lifespan), and handlers call
-the CPU-bound service layer inline, so a busy fleet stream never stalls REST's event loop (or
-the reverse). Both transports share one model store, so an activation is seen by both at once.
+companion hook is synchronous (started and stopped from the app's lifespan), so a busy fleet
+stream never stalls REST's event loop (or the reverse). The handlers' CPU work runs in two
+bounded thread pools (``GRIDPLACE_GRPC_WORKERS`` threads in all, see
+:class:`~service.grpc.servicer.Workers`), never on the loop, and messages larger than the
+largest per-method cap are refused by gRPC itself, before anything is allocated for them. Both transports share one model store, so an activation is seen by both at once.
 
 Also served: the standard health service (``grpc.health.v1.Health``; ``""`` and
 ``gridplace.v1.Localization`` are NOT_SERVING until every active version is loaded, the same
@@ -26,7 +28,7 @@ from service.api.serving import port_in_use
 from service.core.context import ServiceContext
 from service.errors import UnavailableError
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
-from service.grpc.servicer import SERVICE_NAME, LocalizationServicer
+from service.grpc.servicer import SERVICE_NAME, LocalizationServicer, Workers
 from service.settings import Settings
 
 log = logging.getLogger("gridplace.grpc")
@@ -88,15 +90,21 @@ class GrpcServer:
             self._loop.close()
 
     async def _serve(self, context: ServiceContext) -> None:
-        limit = self.settings.max_upload_mb * 1024 * 1024
+        workers = Workers.from_settings(self.settings)
+        try:
+            await self._serve_with(context, workers)
+        finally:
+            workers.shutdown()
+
+    async def _serve_with(self, context: ServiceContext, workers: Workers) -> None:
         server = grpc.aio.server(options=[
-            ("grpc.max_receive_message_length", limit),
-            ("grpc.max_send_message_length", limit),
+            ("grpc.max_receive_message_length", workers.max_message_bytes),
+            ("grpc.max_send_message_length", self.settings.max_upload_mb * 1024 * 1024),
             ("grpc.so_reuseport", 0),  # a second server on this port fails instead of sharing it
             ("grpc.keepalive_permit_without_calls", 1),  # vehicles keep idle streams alive
             ("grpc.http2.min_ping_interval_without_data_ms", 10_000),
         ])  # fmt: skip
-        pb_grpc.add_LocalizationServicer_to_server(LocalizationServicer(context), server)
+        pb_grpc.add_LocalizationServicer_to_server(LocalizationServicer(context, workers), server)
         health = health_aio.HealthServicer()
         health_pb2_grpc.add_HealthServicer_to_server(health, server)
         for service in ("", SERVICE_NAME):

@@ -1,8 +1,12 @@
 """``gridplace.v1.Localization``: every call goes to the service layer shared with REST.
 
-Handlers run on the gRPC server's own event loop (see :mod:`service.grpc.server`) and call the
-service layer inline: one frame is a few hundred microseconds of NumPy, less than a hop to a
-thread pool would cost, and a stream's frames must be answered one after another anyway.
+Handlers run on the gRPC server's own event loop (see :mod:`service.grpc.server`) but never do
+CPU or registry work on it: that runs in the server's bounded thread pools (:class:`Workers`),
+unary ``Localize`` calls and admin calls in one, stream frames in the other, so a large request
+cannot hold up other callers' messages, nor use every thread streams need. A stream's frames
+are still answered one after another, in order. Each method has its own message-size cap
+(``GRIDPLACE_MAX_PUBLIC_BODY_MB`` for ``Localize``, ``GRIDPLACE_MAX_STREAM_FRAME_KB`` per
+stream message); the server refuses anything larger than the largest cap before a handler runs.
 Unary errors abort the call with the status of the error's class (``GridplaceError.grpc_status``)
 and its code in the ``gridplace-error`` trailing metadata; in ``LocalizeStream`` a bad message
 is answered with ``error`` set and the stream goes on.
@@ -10,9 +14,13 @@ is answered with ``error`` set and the stream goes on.
 
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
-from collections.abc import AsyncIterator
-from typing import Any, NoReturn
+from collections.abc import AsyncIterator, Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, NoReturn, TypeVar
 
 import grpc
 
@@ -20,14 +28,56 @@ from service.api.auth import check_admin
 from service.core.context import ServiceContext
 from service.core.streams import FleetStream
 from service.encoding.sequence import SequenceConfig
-from service.errors import EmptyInputError, GridplaceError
+from service.errors import EmptyInputError, GridplaceError, PayloadTooLargeError
 from service.grpc import messages
 from service.grpc.gen import localization_pb2 as pb
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
+from service.settings import Settings
 
 log = logging.getLogger("gridplace.grpc")
+T = TypeVar("T")
 
 SERVICE_NAME = pb.DESCRIPTOR.services_by_name["Localization"].full_name
+ADMIN_MESSAGE_BYTES = 64 * 1024  # ListMaps / GetMap requests carry a name at most
+
+
+@dataclass(frozen=True)
+class Workers:
+    """The thread pools handlers hand their work to, and the per-method size caps."""
+
+    unary: ThreadPoolExecutor  # Localize and admin calls
+    frames: ThreadPoolExecutor  # LocalizeStream frames
+    max_localize_bytes: int
+    max_frame_bytes: int
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Workers:
+        unary = max(1, settings.grpc_workers // 2)
+        return cls(
+            ThreadPoolExecutor(unary, thread_name_prefix="gridplace-grpc-unary"),
+            ThreadPoolExecutor(max(1, settings.grpc_workers - unary),
+                               thread_name_prefix="gridplace-grpc-frames"),
+            settings.max_public_body_mb * 1024 * 1024, settings.max_stream_frame_kb * 1024,
+        )  # fmt: skip
+
+    @property
+    def max_message_bytes(self) -> int:
+        return max(self.max_localize_bytes, self.max_frame_bytes, ADMIN_MESSAGE_BYTES)
+
+    def shutdown(self) -> None:
+        self.unary.shutdown(wait=True, cancel_futures=True)
+        self.frames.shutdown(wait=True, cancel_futures=True)
+
+
+def _check_size(size: int, limit: int, what: str, setting: str) -> None:
+    if size > limit:
+        raise PayloadTooLargeError(
+            f"{what} of {size} bytes exceeds the {limit}-byte limit ({setting})", limit_bytes=limit
+        )
+
+
+async def _off_loop(executor: ThreadPoolExecutor, fn: Callable[..., T], *args: Any) -> T:
+    return await asyncio.get_running_loop().run_in_executor(executor, functools.partial(fn, *args))
 
 
 def _internal() -> GridplaceError:
@@ -44,27 +94,34 @@ async def _abort(context: grpc.aio.ServicerContext, exc: GridplaceError) -> NoRe
 
 
 class LocalizationServicer(pb_grpc.LocalizationServicer):
-    def __init__(self, context: ServiceContext, sequence: SequenceConfig | None = None) -> None:
+    def __init__(self, context: ServiceContext, workers: Workers,
+                 sequence: SequenceConfig | None = None) -> None:  # fmt: skip
         self.ctx = context
         self.service = context.service
+        self.workers = workers
         self.sequence = sequence or SequenceConfig()
 
     async def Localize(self, request: pb.LocalizeRequest, context: grpc.aio.ServicerContext) -> pb.LocalizeResponse:
         try:
-            which = request.WhichOneof("query")
-            if which == "descriptor":
-                result = self.service.localize_bytes(request.map, request.descriptor,
-                                                     request.dimension or None)  # fmt: skip
-            elif which == "image":
-                result = self.service.localize_images(request.map, [("image", request.image)])
-            else:
-                raise EmptyInputError("send a descriptor (float32 bytes) or an image")
-            return messages.localize_response(result)
+            _check_size(request.ByteSize(), self.workers.max_localize_bytes, "a Localize request",
+                        "GRIDPLACE_MAX_PUBLIC_BODY_MB")  # fmt: skip
+            return await _off_loop(self.workers.unary, self._localize, request)
         except GridplaceError as exc:
             await _abort(context, exc)
         except Exception:
             log.exception("Localize failed")
             await _abort(context, _internal())
+
+    def _localize(self, request: pb.LocalizeRequest) -> pb.LocalizeResponse:
+        which = request.WhichOneof("query")
+        if which == "descriptor":
+            result = self.service.localize_bytes(request.map, request.descriptor,
+                                                 request.dimension or None)  # fmt: skip
+        elif which == "image":
+            result = self.service.localize_images(request.map, [("image", request.image)])
+        else:
+            raise EmptyInputError("send a descriptor (float32 bytes) or an image")
+        return messages.localize_response(result)
 
     async def LocalizeStream(
         self, request_iterator: AsyncIterator[pb.StreamRequest], context: grpc.aio.ServicerContext
@@ -72,7 +129,10 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         stream = FleetStream(self.service, self.sequence)
         async for request in request_iterator:
             try:
-                yield messages.stream_response(stream.answer(messages.frame(request)))
+                _check_size(request.ByteSize(), self.workers.max_frame_bytes, "a stream message",
+                            "GRIDPLACE_MAX_STREAM_FRAME_KB")  # fmt: skip
+                answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
+                yield messages.stream_response(answer)
             except GridplaceError as exc:
                 yield messages.stream_error(request, exc)
             except Exception:
@@ -82,25 +142,30 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
 
     async def ListMaps(self, request: pb.ListMapsRequest, context: grpc.aio.ServicerContext) -> pb.ListMapsResponse:
         try:
-            self._admin(context)
-            maps = self.service.list_maps()
+            self._admin(context, request)
+            maps = await _off_loop(self.workers.unary, self.service.list_maps)
             return pb.ListMapsResponse(maps=[messages.map_info(m, self._serving(m.name)) for m in maps])
         except GridplaceError as exc:
             await _abort(context, exc)
 
     async def GetMap(self, request: pb.GetMapRequest, context: grpc.aio.ServicerContext) -> pb.MapInfo:
         try:
-            self._admin(context)
-            info = self.service.get_map(request.name)
-            active = None
-            if info.active_version is not None:
-                active = self.service.get_version(info.name, info.active_version)
-            return messages.map_info(info, self._serving(info.name), active)
+            self._admin(context, request)
+            return await _off_loop(self.workers.unary, self._get_map, request.name)
         except GridplaceError as exc:
             await _abort(context, exc)
 
-    def _admin(self, context: grpc.aio.ServicerContext) -> None:
+    def _get_map(self, name: str) -> pb.MapInfo:
+        info = self.service.get_map(name)
+        active = None
+        if info.active_version is not None:
+            active = self.service.get_version(info.name, info.active_version)
+        return messages.map_info(info, self._serving(info.name), active)
+
+    def _admin(self, context: grpc.aio.ServicerContext, request: Any) -> None:
         """Maps and versions are admin calls, as on REST (``authorization: Bearer <token>``)."""
+        _check_size(request.ByteSize(), ADMIN_MESSAGE_BYTES, "an admin request",
+                    "fixed: admin requests carry a map name at most")  # fmt: skip
         metadata: Any = context.invocation_metadata() or ()
         authorization = next((str(v) for k, v in metadata if k == "authorization"), None)
         check_admin(self.ctx.settings, authorization)
