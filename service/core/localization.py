@@ -35,6 +35,8 @@ if TYPE_CHECKING:
     from service.registry import JobInfo, MapInfo, Registry, VersionInfo
 
 MAX_BATCH_IMAGES = 4096
+SCORE_BLOCK_BYTES = 8 * 1024 * 1024  # float64 frame scores of one block of a batch's rows
+MIN_BLOCK_ROWS = 64
 
 
 @dataclass(frozen=True)
@@ -177,13 +179,18 @@ class LocalizationService:
         return self._answer(loaded, Q, start, kind)
 
     def _answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
-        loc = loaded.model.localize(Q)
+        # a batch is scored a block of rows at a time: the (rows, frames) scores of a large
+        # batch would otherwise take far more memory than its body did
+        step = max(MIN_BLOCK_ROWS, SCORE_BLOCK_BYTES // (8 * max(1, loaded.n_frames)))
+        blocks = [loaded.model.localize(Q[i : i + step]) for i in range(0, Q.shape[0], step)]
         seconds = time.perf_counter() - start
         self.metrics.localize_seconds.labels(map=loaded.map, input=kind).observe(seconds)
-        self.metrics.queries.labels(map=loaded.map, input=kind).inc(len(loc))
+        self.metrics.queries.labels(map=loaded.map, input=kind).inc(Q.shape[0])
         return LocalizeResult(
-            loaded.map, loaded.version, loc.index.astype(np.int64), loc.chunk.astype(np.int64),
-            loc.confidence.astype(np.float64), seconds * 1000.0,
+            loaded.map, loaded.version,
+            np.concatenate([b.index for b in blocks]).astype(np.int64),
+            np.concatenate([b.chunk for b in blocks]).astype(np.int64),
+            np.concatenate([b.confidence for b in blocks]).astype(np.float64), seconds * 1000.0,
         )  # fmt: skip
 
     # -- training ---------------------------------------------------------------------
