@@ -158,8 +158,10 @@ def test_kill_9_of_the_server_takes_its_training_processes_with_it(primary) -> N
     primary.wait_ready(30)
     with httpx.Client(base_url=primary.url, timeout=30) as c:
         job = c.get(f"/v1/jobs/{job_id}", headers=AUTH).json()
+        versions = c.get("/v1/maps/long/versions", headers=AUTH)
     assert job["state"] == "failed", job
     assert f"server process {old_pid}" in job["error"], job
+    assert versions.status_code == 404 or versions.json() == [], versions.text  # nothing half-published
     assert not set(pool) & set(process_tree.descendants(os.getpid()))
 
 
