@@ -61,7 +61,7 @@ def _png(width: int, height: int, seed: int | None = None) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServerProcess, httpx.Client]]:
     from service.registry import Registry
 
     data_dir = tmp_path_factory.mktemp("bounds")
@@ -73,18 +73,19 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     frames = make_extractor(IMG_EXTRACTOR).extract([decode_image(_png(32, 16, s)) for s in range(40)])
     registry.publish("imgs", build_model(ModelParams.parse(**params)).fit(frames), params=params,
                      extractor=IMG_EXTRACTOR, metrics={})  # fmt: skip
-    srv = ServerProcess(data_dir, env=ENV).start()
-    try:
+    with ServerProcess(data_dir, env=ENV) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
         srv.wait_ready(30)
-        yield srv
-    finally:
-        srv.stop()
+        yield srv, c
 
 
 @pytest.fixture(scope="module")
-def client(server: ServerProcess) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=server.url, timeout=60) as c:
-        yield c
+def server(served: tuple[ServerProcess, httpx.Client]) -> ServerProcess:
+    return served[0]
+
+
+@pytest.fixture(scope="module")
+def client(served: tuple[ServerProcess, httpx.Client]) -> httpx.Client:
+    return served[1]
 
 
 def _upload(c: httpx.Client, payload: bytes, filename: str) -> httpx.Response:
