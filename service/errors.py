@@ -43,6 +43,12 @@ class NonFiniteInputError(InvalidInputError):
     code = "non_finite_input"
 
 
+class InputOverflowError(NonFiniteInputError):
+    """Finite values so far from the route's scale that they overflow once normalised."""
+
+    code = "input_overflow"
+
+
 class DimensionMismatchError(InvalidInputError):
     code = "dimension_mismatch"
 
@@ -63,12 +69,24 @@ class UnsafeFileError(InvalidInputError):
     code = "unsafe_or_malformed_file"
 
 
-class NotFittedError(GridplaceError, AttributeError):
-    """A model was used before ``fit`` (409 / FAILED_PRECONDITION)."""
+class RequestValidationError(InvalidInputError):
+    """A request that does not match the API's schema: a missing, unknown or mistyped field
+    (422 / INVALID_ARGUMENT). Refusals that depend on the data (a descriptor of the wrong
+    width for the map, a file that is not a .npy) are 400s of the other classes."""
 
-    code = "not_fitted"
-    http_status = 409
-    grpc_status = "FAILED_PRECONDITION"
+    code = "validation_error"
+    http_status = 422
+
+
+class MethodNotAllowedError(InvalidInputError):
+    code = "method_not_allowed"
+    http_status = 405
+    grpc_status = "UNIMPLEMENTED"
+
+
+class UnsupportedMediaTypeError(InvalidInputError):
+    code = "unsupported_media_type"
+    http_status = 415
 
 
 class ArtifactError(GridplaceError):
@@ -89,6 +107,14 @@ class ConflictError(GridplaceError):
     """The request is valid but the target's state forbids it (409 / FAILED_PRECONDITION)."""
 
     code = "conflict"
+    http_status = 409
+    grpc_status = "FAILED_PRECONDITION"
+
+
+class NotFittedError(GridplaceError, AttributeError):
+    """A model was used before ``fit`` (409 / FAILED_PRECONDITION)."""
+
+    code = "not_fitted"
     http_status = 409
     grpc_status = "FAILED_PRECONDITION"
 
@@ -122,3 +148,32 @@ class UnavailableError(GridplaceError):
     code = "unavailable"
     http_status = 503
     grpc_status = "UNAVAILABLE"
+
+
+def _known() -> list[type[GridplaceError]]:
+    """The classes of this module, breadth-first (a base class before its subclasses)."""
+    out: list[type[GridplaceError]] = [GridplaceError]
+    i = 0
+    while i < len(out):
+        out.extend(
+            sub for sub in out[i].__subclasses__() if sub.__module__ == __name__ and sub not in out
+        )
+        i += 1
+    return out
+
+
+def error_class(code: str | None, http_status: int) -> type[GridplaceError]:
+    """The class of an error answer: the one with this ``code`` (and this HTTP status, where
+    several share a code), else the most general class of ``http_status``, else by range.
+    Only this module's classes answer: subclasses raised elsewhere share their base's code."""
+    known = _known()
+    same_code = [c for c in known if c.code == code]
+    for cls in same_code:
+        if cls.http_status == http_status:
+            return cls
+    if same_code:
+        return same_code[0]
+    by_status = [c for c in known if c.http_status == http_status]
+    if by_status:
+        return by_status[0]  # breadth-first: the base class of that status comes first
+    return InvalidInputError if 400 <= http_status < 500 else GridplaceError

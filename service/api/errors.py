@@ -10,13 +10,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
-from service.errors import GridplaceError, UnauthorizedError
+from service.errors import GridplaceError, UnauthorizedError, error_class
 
 log = logging.getLogger("gridplace.api")
-
-_HTTP_CODES = {400: "bad_request", 404: "not_found", 405: "method_not_allowed",
-               413: "payload_too_large", 415: "unsupported_media_type"}  # fmt: skip
 
 
 def error_response(exc: GridplaceError) -> JSONResponse:
@@ -31,7 +29,8 @@ def _validation_body(errors: list[Any]) -> dict[str, Any]:
         items.append({"field": ".".join(loc) or "body", "message": e.get("msg", ""),
                       "type": e.get("type", "")})  # fmt: skip
     message = "; ".join(f"{i['field']}: {i['message']}" for i in items) or "invalid request"
-    return {"error": "validation_error", "message": message, "details": {"errors": items}}
+    code = error_class("validation_error", 422).code
+    return {"error": code, "message": message, "details": {"errors": items}}
 
 
 async def _gridplace(_: Request, exc: Exception) -> JSONResponse:
@@ -56,12 +55,28 @@ async def _pydantic_validation(_: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(_validation_body(list(errors)), status_code=status)
 
 
-async def _http(_: Request, exc: Exception) -> JSONResponse:
+def allowed_methods(request: Request) -> list[str]:
+    """Every method some route serves at this path (Starlette names only the first route's)."""
+    methods: set[str] = set()
+    for route in request.app.router.routes:
+        match, _ = route.matches(request.scope)
+        route_methods = getattr(route, "methods", None)
+        if match is not Match.NONE and route_methods:
+            methods |= set(route_methods)
+    return sorted(methods)
+
+
+async def _http(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
     if isinstance(exc.__cause__, GridplaceError):  # e.g. 413 raised while FastAPI parsed a form
         return error_response(exc.__cause__)
-    body = {"error": _HTTP_CODES.get(exc.status_code, "http_error"), "message": str(exc.detail)}
-    return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
+    headers = dict(exc.headers or {})
+    if exc.status_code == 405:
+        headers["Allow"] = ", ".join(allowed_methods(request))
+    cls = error_class(None, exc.status_code)
+    code = cls.code if cls.http_status == exc.status_code else "http_error"
+    body = {"error": code, "message": str(exc.detail)}
+    return JSONResponse(body, status_code=exc.status_code, headers=headers or None)
 
 
 async def _unexpected(_: Request, exc: Exception) -> JSONResponse:

@@ -2,159 +2,151 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, File, Form, Header, Query, Request, Response, UploadFile
+from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from starlette.datastructures import FormData, UploadFile
 
 from service.api.auth import require_admin
-from service.api.routes_localize import ERRORS
-from service.api.schemas import JobOut, JobPage, MapDetail, MapOut, VersionOut
+from service.api.schemas import ADMIN_ERRORS, ROUTE_FORM, body_doc
 from service.core.localization import LocalizationService
-from service.encoding.phases import parse_periods
-from service.registry.names import check_map_name
+from service.errors import RequestValidationError
+from service.wire import (
+    MAP_NAME_PATTERN,
+    Job,
+    JobPage,
+    JobState,
+    MapDetail,
+    MapSummary,
+    TrainingOptions,
+    Version,
+)
 
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[Depends(require_admin)],
-                   responses={**ERRORS, 401: ERRORS[400], 403: ERRORS[400]})  # fmt: skip
+                   responses=ADMIN_ERRORS)  # fmt: skip
+
+MapPath = Annotated[str, Path(pattern=MAP_NAME_PATTERN, description="map name")]
+VersionPath = Annotated[int, Path(ge=1, description="version number")]
 
 
 def _service(request: Request) -> LocalizationService:
     return request.app.state.context.service  # type: ignore[no-any-return]
 
 
-Opt = Annotated[int | None, Form()]
+def _route_form(form: FormData) -> tuple[UploadFile, TrainingOptions]:
+    """The route file and the training options of an upload form (422 naming a bad field)."""
+    files = [(k, v) for k, v in form.multi_items() if isinstance(v, UploadFile)]
+    extra_files = sorted({k for k, _ in files if k != "file"})
+    if extra_files:
+        raise RequestValidationError(f"unexpected file field(s) {', '.join(extra_files)}; "
+                                     "send the route as 'file'", fields=extra_files)  # fmt: skip
+    if len(files) != 1:
+        raise RequestValidationError(
+            "file: send the route as exactly one 'file' field" + (f" ({len(files)} sent)" if files else ""),
+            field="file",
+        )  # fmt: skip
+    fields: dict[str, Any] = {}
+    for key in {k for k, v in form.multi_items() if isinstance(v, str)}:
+        values = form.getlist(key)
+        if key != "periods" and len(values) > 1:
+            raise RequestValidationError(f"{key}: the field is given {len(values)} times", field=key)
+        fields[key] = values if key == "periods" else values[0]
+    return files[0][1], TrainingOptions.model_validate(fields)
 
 
-@router.post("/maps/{name}/routes", status_code=202, response_model=JobOut,
-             summary="Upload a route and train a new version")  # fmt: skip
+@router.post("/maps/{name}/routes", status_code=202, response_model=Job,
+             summary="Upload a route and train a new version",
+             openapi_extra=body_doc(None, ROUTE_FORM))  # fmt: skip
 async def upload_route(
     request: Request,
     response: Response,
-    name: str,
-    file: Annotated[UploadFile, File(description=".npy/.npz descriptors or .zip/.tar of images")],
-    n_patterns: Opt = None,
-    periods: Annotated[str | None, Form(description="e.g. 60,60")] = None,
-    rho: Annotated[float | None, Form()] = None,
-    gamma: Annotated[float | None, Form()] = None,
-    trainer: Annotated[str | None, Form(description="logreg | svm | ridge | torch")] = None,
-    C: Annotated[float | None, Form()] = None,
-    decode: Annotated[str | None, Form(description="joint | argmax")] = None,
-    beam_width: Opt = None,
-    dtype: Annotated[str | None, Form(description="float64 | float32 | float16 | int8")] = None,
-    n_chunks: Opt = None,
-    chunk_rho: Annotated[float | None, Form()] = None,
-    top_chunks: Opt = None,
-    random_state: Opt = None,
-    extractor: Annotated[str | None, Form(description="patchnorm | hog | cnn (image archives)")] = None,
-    width: Opt = None,
-    height: Opt = None,
-    patch: Opt = None,
-    orientations: Opt = None,
-    pixels_per_cell: Opt = None,
-    cells_per_block: Opt = None,
-    arch: Annotated[str | None, Form()] = None,
-    weights: Annotated[str | None, Form(description="server-side path of CNN weights")] = None,
-    allow_dimension_change: Annotated[bool, Form(
-        description="accept a descriptor width other than the active version's (its clients "
-        "must change too); refused with 409 otherwise")] = False,
-    force: Annotated[bool, Form(
-        description="train even if this route was uploaded before with the same parameters")
-    ] = False,
-    idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key")] = None,
-) -> JobOut:
-    """Returns 202 and the training job; poll ``GET /v1/jobs/{id}``. The same
-    ``Idempotency-Key`` for the same map returns the existing job instead of a second one;
-    so does the same route (by content) with the same parameters and extractor, unless
-    ``force``: then the answer is 200 with ``reused: true`` (and the job's ``version`` once
-    it succeeded)."""
-    check_map_name(name)
-    params: dict[str, Any] = {
-        k: v for k, v in dict(
-            n_patterns=n_patterns, rho=rho, gamma=gamma, trainer=trainer, C=C, decode=decode,
-            beam_width=beam_width, dtype=dtype, n_chunks=n_chunks, chunk_rho=chunk_rho,
-            top_chunks=top_chunks, random_state=random_state,
-        ).items() if v is not None
-    }  # fmt: skip
-    if periods:
-        params["periods"] = parse_periods(periods)
-    ext: dict[str, Any] = {
-        k: v for k, v in dict(
-            width=width, height=height, patch=patch, orientations=orientations,
-            pixels_per_cell=pixels_per_cell, cells_per_block=cells_per_block, arch=arch,
-            weights=weights,
-        ).items() if v is not None
-    }  # fmt: skip
-    ext_config = {"kind": extractor or "patchnorm", **ext} if (extractor or ext) else None
-    job = await run_in_threadpool(
-        _service(request).submit_route, name, file.filename or "upload", file.file, params,
-        ext_config, idempotency_key, allow_dimension_change=allow_dimension_change, force=force,
-    )  # fmt: skip
+    name: MapPath,
+    idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", min_length=1,
+                                                  max_length=200)] = None,  # fmt: skip
+) -> Job:
+    """A multipart form: the route as ``file`` and any training options. Everything that can
+    be checked from the upload itself is checked before the answer: 202 and the queued job
+    (poll ``GET /v1/jobs/{id}``). The same ``Idempotency-Key`` for the same map returns the
+    existing job instead of a second one; so does the same route (by content) with the same
+    parameters and extractor, unless ``force``: then the answer is 200 with ``reused: true``
+    (and the job's ``version`` once it succeeded)."""
+    async with request.form() as form:
+        file, options = _route_form(form)
+        job = await run_in_threadpool(
+            functools.partial(
+                _service(request).submit_route, name, file.filename or "upload", file.file,
+                options.training_params(), options.extractor_config(), idempotency_key,
+                **options.upload_flags(),
+            )
+        )  # fmt: skip
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     if job.reused:
         response.status_code = 200
-    return JobOut.model_validate(job)
+    return Job.model_validate(job)
 
 
 @router.get("/jobs", response_model=JobPage, summary="Training jobs, newest first (paginated)")
 def list_jobs(
     request: Request,
-    map: Annotated[str | None, Query(description="only this map's jobs")] = None,  # noqa: A002
-    state: Annotated[list[str] | None, Query(
-        description="only jobs in these states (repeatable): queued, running, succeeded, failed"
-    )] = None,
+    map: Annotated[str | None, Query(pattern=MAP_NAME_PATTERN,  # noqa: A002
+                                     description="only this map's jobs")] = None,  # fmt: skip
+    state: Annotated[list[JobState] | None, Query(
+        description="only jobs in these states (repeatable)")] = None,  # fmt: skip
     limit: Annotated[int, Query(ge=1, le=500, description="jobs per page")] = 50,
     cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
 ) -> JobPage:
     jobs, next_cursor = _service(request).list_jobs(map, state, limit, cursor)
-    return JobPage(jobs=[JobOut.model_validate(j) for j in jobs], next_cursor=next_cursor)
+    return JobPage(jobs=[Job.model_validate(j) for j in jobs], next_cursor=next_cursor)
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, summary="A training job's state")
-def get_job(request: Request, job_id: str) -> JobOut:
-    return JobOut.model_validate(_service(request).get_job(job_id))
+@router.get("/jobs/{job_id}", response_model=Job, summary="A training job's state")
+def get_job(request: Request, job_id: str) -> Job:
+    return Job.model_validate(_service(request).get_job(job_id))
 
 
-@router.get("/maps", response_model=list[MapOut], summary="Every map")
-def list_maps(request: Request) -> list[MapOut]:
-    return [MapOut.model_validate(m) for m in _service(request).list_maps()]
+@router.get("/maps", response_model=list[MapSummary], summary="Every map")
+def list_maps(request: Request) -> list[MapSummary]:
+    return [MapSummary.model_validate(m) for m in _service(request).list_maps()]
 
 
 @router.get("/maps/{name}", response_model=MapDetail, summary="A map and its active version")
-def get_map(request: Request, name: str) -> MapDetail:
+def get_map(request: Request, name: MapPath) -> MapDetail:
     svc = _service(request)
     info = svc.get_map(name)
-    detail = MapDetail.model_validate(info)
-    if info.active_version is not None:
-        detail.active = VersionOut.model_validate(svc.get_version(name, info.active_version))
+    active = svc.get_version(name, info.active_version) if info.active_version is not None else None
     loaded = svc.store.get(name)
-    detail.serving_version = loaded.version if loaded else None
-    return detail
+    return MapDetail.model_validate({
+        **MapSummary.model_validate(info).model_dump(), "active": active,
+        "serving_version": loaded.version if loaded else None,
+    })  # fmt: skip
 
 
-@router.get("/maps/{name}/versions", response_model=list[VersionOut], summary="A map's versions")
-def list_versions(request: Request, name: str) -> list[VersionOut]:
-    return [VersionOut.model_validate(v) for v in _service(request).list_versions(name)]
+@router.get("/maps/{name}/versions", response_model=list[Version], summary="A map's versions")
+def list_versions(request: Request, name: MapPath) -> list[Version]:
+    return [Version.model_validate(v) for v in _service(request).list_versions(name)]
 
 
-@router.get("/maps/{name}/versions/{version}", response_model=VersionOut, summary="One version")
-def get_version(request: Request, name: str, version: int) -> VersionOut:
-    return VersionOut.model_validate(_service(request).get_version(name, version))
+@router.get("/maps/{name}/versions/{version}", response_model=Version, summary="One version")
+def get_version(request: Request, name: MapPath, version: VersionPath) -> Version:
+    return Version.model_validate(_service(request).get_version(name, version))
 
 
-@router.post("/maps/{name}/versions/{version}/activate", response_model=VersionOut,
+@router.post("/maps/{name}/versions/{version}/activate", response_model=Version,
              summary="Activate or roll back to a version (hot swap)")  # fmt: skip
-def activate(request: Request, name: str, version: int) -> VersionOut:
-    return VersionOut.model_validate(_service(request).activate(name, version))
+def activate(request: Request, name: MapPath, version: VersionPath) -> Version:
+    return Version.model_validate(_service(request).activate(name, version))
 
 
-@router.post("/maps/{name}/deactivate", response_model=MapOut,
+@router.post("/maps/{name}/deactivate", response_model=MapSummary,
              summary="Take a map out of service (localize answers 409)")  # fmt: skip
-def deactivate(request: Request, name: str) -> MapOut:
-    return MapOut.model_validate(_service(request).deactivate(name))
+def deactivate(request: Request, name: MapPath) -> MapSummary:
+    return MapSummary.model_validate(_service(request).deactivate(name))
 
 
 @router.delete("/maps/{name}/versions/{version}", status_code=204,
                summary="Delete an inactive version")  # fmt: skip
-def delete_version(request: Request, name: str, version: int) -> Response:
+def delete_version(request: Request, name: MapPath, version: VersionPath) -> Response:
     _service(request).delete_version(name, version)
     return Response(status_code=204)

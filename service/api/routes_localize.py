@@ -4,27 +4,25 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
 from service.api.schemas import (
-    BatchLocalizeRequest,
-    BatchLocalizeResponse,
-    ErrorOut,
-    LocalizeRequest,
-    LocalizeResponse,
+    ERRORS,
+    IMAGE_FORM,
+    IMAGES_FORM,
+    batch_localization,
+    body_doc,
+    localization,
 )
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
 from service.errors import EmptyInputError, InvalidInputError
+from service.wire import BatchLocalization, BatchLocalizeRequest, Localization, LocalizeRequest
 
 router = APIRouter(prefix="/v1", tags=["localize"])
-
-ERRORS: dict[int | str, dict[str, Any]] = {
-    s: {"model": ErrorOut} for s in (400, 404, 409, 413, 422, 503)
-}
 
 
 def _b64(text: str, field: str) -> bytes:
@@ -63,38 +61,14 @@ async def _json_body(request: Request) -> bytes:
     return body
 
 
-def _schema(model: type[Any]) -> dict[str, Any]:
-    return model.model_json_schema(ref_template="#/components/schemas/{model}")  # type: ignore[no-any-return]
-
-
-def _body_doc(json_model: type[Any], multipart: dict[str, Any], binary: bool) -> dict[str, Any]:
-    content: dict[str, Any] = {
-        "application/json": {"schema": _schema(json_model)},
-        "multipart/form-data": {"schema": multipart},
-    }
-    if binary:
-        content["application/octet-stream"] = {
-            "schema": {"type": "string", "format": "binary",
-                       "description": "n·d little-endian float32; map and d as query or headers"}
-        }  # fmt: skip
-    return {"requestBody": {"required": True, "content": content}}
-
-
-_IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
-    "map": {"type": "string"}, "image": {"type": "string", "format": "binary"}}}  # fmt: skip
-_IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
-    "map": {"type": "string"},
-    "images": {"type": "array", "items": {"type": "string", "format": "binary"}}}}  # fmt: skip
-
-
 @router.post(
     "/localize",
-    response_model=LocalizeResponse,
+    response_model=Localization,
     responses=ERRORS,
-    openapi_extra=_body_doc(LocalizeRequest, _IMAGE_FORM, binary=False),
+    openapi_extra=body_doc(LocalizeRequest, IMAGE_FORM),
     summary="Localize one descriptor or image",
 )
-async def localize(request: Request) -> LocalizeResponse:
+async def localize(request: Request) -> Localization:
     """JSON ``{"map", "descriptor" | "descriptor_b64" | "image_b64"}`` or a multipart form
     with a ``map`` field and an ``image`` file."""
     svc = _service(request)
@@ -104,10 +78,10 @@ async def localize(request: Request) -> LocalizeResponse:
         if len(images) != 1:
             raise InvalidInputError(f"send one image here ({len(images)} sent); use /v1/localize/batch")
         result = await run_in_threadpool(svc.localize_images, name, images)
-        return LocalizeResponse.of(result)
+        return localization(result)
     req = LocalizeRequest.model_validate_json(await _json_body(request))
     result = await run_in_threadpool(_localize_one, svc, req)
-    return LocalizeResponse.of(result)
+    return localization(result)
 
 
 def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:
@@ -124,9 +98,10 @@ def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeRes
 
 @router.post(
     "/localize/batch",
-    response_model=BatchLocalizeResponse,
+    response_model=BatchLocalization,
     responses=ERRORS,
-    openapi_extra=_body_doc(BatchLocalizeRequest, _IMAGES_FORM, binary=True),
+    openapi_extra=body_doc(BatchLocalizeRequest, IMAGES_FORM,
+                           binary="n·d little-endian float32; the map as ?map= (required), d as ?d="),
     summary="Localize many descriptors or images in one call",
 )
 async def localize_batch(
@@ -135,7 +110,7 @@ async def localize_batch(
     d_q: Annotated[int | None, Query(alias="d", ge=1, description="descriptor size (binary)")] = None,
     map_h: Annotated[str | None, Header(alias="X-Gridplace-Map")] = None,
     d_h: Annotated[int | None, Header(alias="X-Gridplace-Dim", ge=1)] = None,
-) -> BatchLocalizeResponse:
+) -> BatchLocalization:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64"}``, a multipart form
     (``map`` + ``images`` files), or an ``application/octet-stream`` body of float32."""
     svc = _service(request)
@@ -154,7 +129,7 @@ async def localize_batch(
     else:
         req = BatchLocalizeRequest.model_validate_json(await _json_body(request))
         result = await run_in_threadpool(_localize_many, svc, req)
-    return BatchLocalizeResponse.of(result)
+    return batch_localization(result)
 
 
 def _localize_many(svc: LocalizationService, req: BatchLocalizeRequest) -> LocalizeResult:

@@ -1,169 +1,90 @@
-"""Request and response bodies of the REST API (pydantic, documented in /docs)."""
+"""The REST API's bodies: the shared wire models (:mod:`service.wire`), their conversion from
+service-layer results, and the parts of the OpenAPI schema FastAPI cannot derive itself
+(multipart forms and binary bodies read by hand)."""
 
 from __future__ import annotations
 
-from datetime import datetime
-from typing import Any, Literal
-
-from pydantic import BaseModel, ConfigDict, Field, computed_field, model_validator
+from typing import Any
 
 from service.core.localization import LocalizeResult
+from service.wire import (
+    MAP_NAME_PATTERN,
+    BatchLocalization,
+    ErrorBody,
+    Localization,
+    TrainingOptions,
+)
 
-MapName = Field(..., description="map (route) name", examples=["nordland"])
-
-
-class LocalizeRequest(BaseModel):
-    """One query: exactly one of ``descriptor``, ``descriptor_b64`` or ``image_b64``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    map: str = MapName
-    descriptor: list[float] | None = Field(None, description="d floats")
-    descriptor_b64: str | None = Field(None, description="base64 of d little-endian float32")
-    image_b64: str | None = Field(None, description="base64 of an encoded image (PNG, JPEG…)")
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> LocalizeRequest:
-        given = [k for k in ("descriptor", "descriptor_b64", "image_b64") if getattr(self, k) is not None]
-        if len(given) != 1:
-            raise ValueError(
-                "send exactly one of descriptor, descriptor_b64, image_b64"
-                + (f" (got {', '.join(given)})" if given else "")
-            )
-        return self
-
-
-class BatchLocalizeRequest(BaseModel):
-    """Many queries: exactly one of ``descriptors``, ``descriptors_b64`` or ``images_b64``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    map: str = MapName
-    descriptors: list[list[float]] | None = Field(None, description="n rows of d floats")
-    descriptors_b64: str | None = Field(None, description="base64 of n·d little-endian float32")
-    images_b64: list[str] | None = Field(None, description="base64 encoded images")
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> BatchLocalizeRequest:
-        given = [k for k in ("descriptors", "descriptors_b64", "images_b64") if getattr(self, k) is not None]
-        if len(given) != 1:
-            raise ValueError(
-                "send exactly one of descriptors, descriptors_b64, images_b64"
-                + (f" (got {', '.join(given)})" if given else "")
-            )
-        return self
-
-
-class LocalizeResponse(BaseModel):
-    map: str
-    version: int
-    index: int = Field(..., description="frame index on the route")
-    chunk: int = Field(..., description="chunk that answered (0 without chunking)")
-    confidence: float = Field(..., ge=0.0, le=1.0)
-    latency_ms: float = Field(..., description="server-side time in the service layer")
-
-    @classmethod
-    def of(cls, r: LocalizeResult) -> LocalizeResponse:
-        return cls(map=r.map, version=r.version, index=int(r.index[0]), chunk=int(r.chunk[0]),
-                   confidence=float(r.confidence[0]), latency_ms=r.latency_ms)  # fmt: skip
-
-
-class BatchLocalizeResponse(BaseModel):
-    map: str
-    version: int
-    n: int
-    index: list[int]
-    chunk: list[int]
-    confidence: list[float]
-    latency_ms: float
-
-    @classmethod
-    def of(cls, r: LocalizeResult) -> BatchLocalizeResponse:
-        return cls(map=r.map, version=r.version, n=len(r), index=r.index.tolist(),
-                   chunk=r.chunk.tolist(), confidence=r.confidence.tolist(),
-                   latency_ms=r.latency_ms)  # fmt: skip
-
-
-class _FromAttrs(BaseModel):
-    model_config = ConfigDict(from_attributes=True)
-
-
-class MapOut(_FromAttrs):
-    name: str
-    active_version: int | None
-    versions: list[int]
-    created_at: datetime
-
-
-class VersionOut(_FromAttrs):
-    map: str
-    version: int
-    active: bool
-    n_frames: int
-    n_features: int
-    kind: str
-    params: dict[str, Any]
-    extractor: dict[str, Any] | None
-    created_at: datetime
-    sha256: str
-    footprint: dict[str, Any]
-    artifact_bytes: int
-    metrics: dict[str, Any]
-    job_id: str | None
-    content_sha256: str | None = Field(None, description="sha256 of the route's descriptors")
-    extra: dict[str, Any] = Field(
-        default_factory=dict, description="e.g. dimension_change {from, to, reference_version}"
+ERRORS: dict[int | str, dict[str, Any]] = {
+    s: {"model": ErrorBody, "description": d} for s, d in (
+        (400, "the data cannot be used (named in the message)"), (404, "unknown map"),
+        (409, "the map's state forbids it (no active version…)"),
+        (413, "the body exceeds a size limit"), (422, "the request does not match this schema"),
+        (503, "not ready yet or a dependency is down; retry"),
     )
+}  # fmt: skip
+ADMIN_ERRORS: dict[int | str, dict[str, Any]] = {
+    **ERRORS,
+    401: {"model": ErrorBody, "description": "no or wrong bearer token"},
+    403: {"model": ErrorBody, "description": "the admin API is disabled on this server"},
+}
 
 
-class MapDetail(MapOut):
-    active: VersionOut | None = None
-    serving_version: int | None = Field(None, description="version loaded in this process")
+def localization(r: LocalizeResult) -> Localization:
+    return Localization(map=r.map, version=r.version, index=int(r.index[0]),
+                        chunk=int(r.chunk[0]), confidence=float(r.confidence[0]),
+                        latency_ms=r.latency_ms)  # fmt: skip
 
 
-class JobRetryOut(_FromAttrs):
-    part: str = Field(..., description="chunk-3, classifier, prepare, train or assemble")
-    attempt: int = Field(..., description="the attempt that failed (1 = first run)")
-    error: str
-    at: datetime
+def batch_localization(r: LocalizeResult) -> BatchLocalization:
+    return BatchLocalization(map=r.map, version=r.version, n=len(r), index=r.index.tolist(),
+                             chunk=r.chunk.tolist(), confidence=r.confidence.tolist(),
+                             latency_ms=r.latency_ms)  # fmt: skip
 
 
-class JobOut(_FromAttrs):
-    id: str
-    map: str
-    state: Literal["queued", "running", "succeeded", "failed"]
-    stage: str
-    chunks_done: int
-    chunks_total: int
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
-    error: str | None
-    version: int | None
-    idempotency_key: str | None
-    timings: dict[str, float]
-    content_sha256: str | None = Field(None, description="sha256 of the uploaded descriptors")
-    retries: list[JobRetryOut] = Field(
-        default_factory=list, description="parts that failed and were run again, oldest first"
-    )
-    reused: bool = Field(
-        False, description="an earlier upload's job (the same route, parameters and "
-        "extractor): nothing new was queued",
-    )
-
-    @computed_field  # type: ignore[prop-decorator]
-    @property
-    def job_id(self) -> str:
-        """The same as ``id``: the name the upload answer is documented with."""
-        return self.id
+# -- OpenAPI of bodies read by hand -----------------------------------------------------------
+def component(model: type[Any]) -> dict[str, Any]:
+    """``model``'s JSON schema with references into ``#/components/schemas``."""
+    return model.model_json_schema(ref_template="#/components/schemas/{model}")  # type: ignore[no-any-return]
 
 
-class JobPage(BaseModel):
-    jobs: list[JobOut] = Field(..., description="newest first")
-    next_cursor: str | None = Field(None, description="pass as ?cursor= for the next page")
+def _form_property(schema: dict[str, Any]) -> dict[str, Any]:
+    """A form field's schema: form fields are never null (an absent field is the default)."""
+    out = {k: v for k, v in schema.items() if k not in ("anyOf", "default")}
+    variants = [v for v in schema.get("anyOf", []) if v.get("type") != "null"]
+    if len(variants) == 1:
+        out.update(variants[0])
+    elif variants:
+        out["anyOf"] = variants
+    return out
 
 
-class ErrorOut(BaseModel):
-    error: str = Field(..., description="machine-readable code, e.g. dimension_mismatch")
-    message: str
-    details: dict[str, Any] | None = None
+def form_schema(model: type[Any], files: dict[str, dict[str, Any]],
+                required: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
+    """A ``multipart/form-data`` schema: ``model``'s fields as text fields plus ``files``."""
+    props = {k: _form_property(v) for k, v in component(model).get("properties", {}).items()}
+    return {"type": "object", "properties": {**props, **files},
+            "required": [*required, *files], "additionalProperties": False}  # fmt: skip
+
+
+BINARY = {"type": "string", "format": "binary"}
+MAP_FIELD = {"type": "string", "pattern": MAP_NAME_PATTERN, "description": "map (route) name"}
+IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
+    "map": MAP_FIELD, "image": {**BINARY, "description": "an encoded image (PNG, JPEG…)"}}}  # fmt: skip
+IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
+    "map": MAP_FIELD, "images": {"type": "array", "minItems": 1, "items": BINARY}}}  # fmt: skip
+ROUTE_FORM = form_schema(TrainingOptions, {"file": {
+    **BINARY, "description": ".npy/.npz descriptors, or a .zip/.tar of images in route order"}})  # fmt: skip
+
+
+def body_doc(json_model: type[Any] | None, multipart: dict[str, Any] | None = None,
+             binary: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """``openapi_extra`` declaring a request body read by hand, per content type."""
+    content: dict[str, Any] = {}
+    if json_model is not None:
+        content["application/json"] = {"schema": component(json_model)}
+    if multipart is not None:
+        content["multipart/form-data"] = {"schema": multipart}
+    if binary is not None:
+        content["application/octet-stream"] = {"schema": {**BINARY, "description": binary}}
+    return {"requestBody": {"required": True, "content": content}}

@@ -13,7 +13,7 @@ from service.client.errors import (
     UnexpectedResponseError,
     error_from_response,
 )
-from service.client.models import (
+from service.wire import (
     BatchLocalization,
     Health,
     Job,

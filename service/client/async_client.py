@@ -22,7 +22,7 @@ from service.client import calls
 from service.client.calls import Call, ImageSource, RouteSource
 from service.client.client import JobCallback, TimeoutTypes, answer, auth_headers, resolve
 from service.client.errors import JobTimeoutError, transport_error
-from service.client.models import (
+from service.wire import (
     BatchLocalization,
     Health,
     Job,

@@ -21,7 +21,8 @@ from numpy.typing import ArrayLike
 from pydantic import TypeAdapter, ValidationError
 
 from service.client.errors import UnexpectedResponseError
-from service.client.models import (
+from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
+from service.wire import (
     BatchLocalization,
     Health,
     Job,
@@ -33,7 +34,6 @@ from service.client.models import (
     TrainingOptions,
     Version,
 )
-from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
 
 T = TypeVar("T")
 DEFAULT_URL = "http://127.0.0.1:8080"

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from service.client import calls
 from service.client.calls import DEFAULT_URL, Call, ImageSource, RouteSource
 from service.client.errors import JobTimeoutError, error_from_response, transport_error
-from service.client.models import (
+from service.wire import (
     BatchLocalization,
     Health,
     Job,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 
 from service.errors import InvalidInputError
+from service.wire import MAP_NAME_PATTERN
 
-MAP_NAME_PATTERN = r"^[a-z0-9][a-z0-9_.-]{0,63}$"
 _MAP_NAME = re.compile(MAP_NAME_PATTERN)
 
 

@@ -94,11 +94,11 @@ def test_bad_uploads_are_4xx_naming_the_problem(client: TestClient, auth, route,
         (b"\x93NUMPY" + pickle.dumps(1), "r.npy", {}, 400, "not a valid"),
         (b"", "r.npy", {}, 400, "empty"),
         (b"hello world", "r.txt", {}, 400, "neither"),
-        (npy_bytes(route[0]), "r.npy", {"rho": "7"}, 400, "rho"),
-        (npy_bytes(route[0]), "r.npy", {"trainer": "magic"}, 400, "trainer"),
+        (npy_bytes(route[0]), "r.npy", {"rho": "7"}, 422, "rho"),  # the schema's bounds: 422
+        (npy_bytes(route[0]), "r.npy", {"trainer": "magic"}, 422, "trainer"),
         (npy_bytes(route[0]), "r.npy", {"n_patterns": "two"}, 422, "n_patterns"),
         (npy_bytes(route[0]), "r.npy", {"extractor": "patchnorm"}, 400, "d=2048"),
-        (npy_bytes(route[0]), "r.npy", {"extractor": "sift"}, 400, "extractor"),
+        (npy_bytes(route[0]), "r.npy", {"extractor": "sift"}, 422, "extractor"),
         (npy_bytes(route[0]), "r.npy", {"n_chunks": "500"}, 400, "n_chunks"),
     ]
     arr = np.empty(3, dtype=object)
@@ -113,7 +113,7 @@ def test_bad_uploads_are_4xx_naming_the_problem(client: TestClient, auth, route,
         r = _upload(client, auth, "bad", payload, filename, **data)
         assert r.status_code == status, (needle, r.text)
         assert needle.lower() in r.text.lower(), (needle, r.text)
-    assert _upload(client, auth, "bad name!", npy_bytes(route[0])).status_code == 400
+    assert _upload(client, auth, "bad name!", npy_bytes(route[0])).status_code == 422
     assert not list(settings.data_dir.glob("uploads/*.npy"))  # nothing half-accepted was stored
 
 
@@ -175,6 +175,6 @@ def test_unauthenticated_upload_is_refused_before_its_body_is_read(client: TestC
     assert reads <= 1  # the gate answered from the headers
 
 
-def test_non_integer_periods_are_a_400_naming_them(client, auth, route) -> None:
+def test_non_integer_periods_are_a_422_naming_them(client, auth, route) -> None:
     r = _upload(client, auth, "m", npy_bytes(route[0]), periods="8,a")
-    assert r.status_code == 400 and "periods must be integers" in r.json()["message"]
+    assert r.status_code == 422 and "periods.1: Input should be a valid integer" in r.json()["message"]

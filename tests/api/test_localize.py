@@ -48,9 +48,10 @@ def test_batch_json_binary_and_b64_agree(client: TestClient, trained: str, route
     ("payload", "status", "code"),
     [
         ({"map": "synthetic", "descriptor": [0.0] * 31}, 400, "dimension_mismatch"),
-        ({"map": "synthetic", "descriptor": []}, 400, "empty_input"),
-        ({"map": "synthetic", "descriptor_b64": "***not base64***"}, 400, "invalid_input"),
-        ({"map": "synthetic", "descriptor_b64": base64.b64encode(b"abc").decode()}, 400, "invalid_input"),
+        # what the schema says (minItems, base64 of whole float32 values) is a 422
+        ({"map": "synthetic", "descriptor": []}, 422, "validation_error"),
+        ({"map": "synthetic", "descriptor_b64": "***not base64***"}, 422, "validation_error"),
+        ({"map": "synthetic", "descriptor_b64": base64.b64encode(b"abc").decode()}, 422, "validation_error"),
         ({"map": "synthetic", "image_b64": base64.b64encode(b"not an image").decode()}, 409, "conflict"),
         ({"map": "synthetic"}, 422, "validation_error"),
         ({"descriptor": [1.0]}, 422, "validation_error"),

@@ -175,7 +175,7 @@ def _bad_cases() -> list[tuple[str, str, dict[str, Any], int, str]]:
         ("inf", "/v1/localize", {"content": inf_body, "headers": {"Content-Type": "application/json"}}, 400, "infinite"),
         ("empty body", "/v1/localize", {"content": b"", "headers": {"Content-Type": "application/json"}}, 400, "empty"),
         ("empty binary", "/v1/localize/batch?map=synth", {"content": b"", "headers": {"Content-Type": "application/octet-stream"}}, 400, "empty"),
-        ("malformed base64", "/v1/localize", {"json": {"map": "synth", "descriptor_b64": "%%%"}}, 400, "base64"),
+        ("malformed base64", "/v1/localize", {"json": {"map": "synth", "descriptor_b64": "%%%"}}, 422, "base64"),
         ("non-image bytes", "/v1/localize", {"json": {"map": "imgs", "image_b64": base64.b64encode(b"plain text").decode()}}, 400, "not a decodable image"),
         ("non-image multipart", "/v1/localize", {"data": {"map": "imgs"}, "files": {"image": ("x.png", b"\x00\x01")}}, 400, "not a decodable image"),
         ("missing field", "/v1/localize", {"json": {"descriptor": [1.0]}}, 422, "map"),

@@ -1,0 +1,101 @@
+"""``POST /v1/localize`` and ``POST /v1/localize/batch`` JSON bodies and answers."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from pydantic import AfterValidator, ConfigDict, Field, model_validator
+
+from service.wire.base import Answer, MapName, Request, exactly_one_of, given
+
+_B64 = "[A-Za-z0-9+/]"
+BASE64_PATTERN = rf"^(?:{_B64}{{4}})*(?:{_B64}{{2}}==|{_B64}{{3}}=)?$"
+# base64 of a whole number of float32 values: 3 float32 = 12 bytes = 16 characters
+FLOAT32_BASE64_PATTERN = rf"^(?:{_B64}{{16}})*(?:{_B64}{{6}}==|{_B64}{{11}}=)?$"
+_BASE64 = re.compile(BASE64_PATTERN)
+
+
+def _base64(text: str) -> str:
+    if not _BASE64.fullmatch(text):
+        raise ValueError("not valid base64 (A-Z a-z 0-9 + / in groups of 4, '=' padding)")
+    return text
+
+
+def _float32_base64(text: str) -> str:
+    _base64(text)
+    n_bytes = len(text) // 4 * 3 - text[-2:].count("=")
+    if n_bytes % 4:
+        raise ValueError(f"base64 of {n_bytes} bytes, not a whole number of float32 values")
+    return text
+
+
+# the pattern is in the schema; the validators say in words what a mismatch means
+Base64 = Annotated[str, Field(min_length=1, json_schema_extra={"pattern": BASE64_PATTERN}),
+                   AfterValidator(_base64)]  # fmt: skip
+Float32Base64 = Annotated[str, Field(min_length=1, json_schema_extra={"pattern": FLOAT32_BASE64_PATTERN}),
+                          AfterValidator(_float32_base64)]  # fmt: skip
+QUERY_FIELDS = ("descriptor", "descriptor_b64", "image_b64")
+BATCH_FIELDS = ("descriptors", "descriptors_b64", "images_b64")
+
+
+def _exactly_one(model: Request, fields: tuple[str, ...]) -> None:
+    sent = given(model, fields)
+    if len(sent) != 1:
+        raise ValueError(
+            f"send exactly one of {', '.join(fields)}" + (f" (got {', '.join(sent)})" if sent else "")
+        )
+
+
+class LocalizeRequest(Request):
+    """One query: exactly one of ``descriptor``, ``descriptor_b64`` or ``image_b64``."""
+
+    model_config = ConfigDict(json_schema_extra=exactly_one_of(*QUERY_FIELDS))
+
+    map: MapName
+    descriptor: list[float] | None = Field(None, min_length=1, description="d floats")
+    descriptor_b64: Float32Base64 | None = Field(None, description="base64 of d little-endian float32")
+    image_b64: Base64 | None = Field(None, description="base64 of an encoded image (PNG, JPEG…)")
+
+    @model_validator(mode="after")
+    def _one_query(self) -> LocalizeRequest:
+        _exactly_one(self, QUERY_FIELDS)
+        return self
+
+
+class BatchLocalizeRequest(Request):
+    """Many queries: exactly one of ``descriptors``, ``descriptors_b64`` or ``images_b64``."""
+
+    model_config = ConfigDict(json_schema_extra=exactly_one_of(*BATCH_FIELDS))
+
+    map: MapName
+    descriptors: list[list[float]] | None = Field(None, min_length=1,
+                                                  description="n rows of d floats")  # fmt: skip
+    descriptors_b64: Float32Base64 | None = Field(None,
+                                                  description="base64 of n·d little-endian float32")  # fmt: skip
+    images_b64: list[Base64] | None = Field(None, min_length=1,
+                                            description="base64 encoded images")  # fmt: skip
+
+    @model_validator(mode="after")
+    def _one_query(self) -> BatchLocalizeRequest:
+        _exactly_one(self, BATCH_FIELDS)
+        return self
+
+
+class Localization(Answer):
+    map: str
+    version: int = Field(description="the map version that answered")
+    index: int = Field(description="frame index on the route")
+    chunk: int = Field(description="chunk that answered (0 without chunking)")
+    confidence: float = Field(ge=0.0, le=1.0)
+    latency_ms: float = Field(description="server-side time in the service layer")
+
+
+class BatchLocalization(Answer):
+    map: str
+    version: int
+    n: int = Field(description="number of queries answered")
+    index: list[int]
+    chunk: list[int]
+    confidence: list[float]
+    latency_ms: float
