@@ -10,11 +10,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match
 
 from service.errors import GridplaceError, UnauthorizedError, error_class
 
 log = logging.getLogger("gridplace.api")
+_METHODS = {"GET", "PUT", "POST", "DELETE", "OPTIONS", "HEAD", "PATCH", "TRACE"}
 
 
 def error_response(exc: GridplaceError) -> JSONResponse:
@@ -56,13 +56,18 @@ async def _pydantic_validation(_: Request, exc: Exception) -> JSONResponse:
 
 
 def allowed_methods(request: Request) -> list[str]:
-    """Every method some route serves at this path (Starlette names only the first route's)."""
+    """Every method the API documents at this path (Starlette's 405 names only the methods of
+    the first route matching the path, e.g. GET but not DELETE)."""
+    parts = request.url.path.strip("/").split("/")
     methods: set[str] = set()
-    for route in request.app.router.routes:
-        match, _ = route.matches(request.scope)
-        route_methods = getattr(route, "methods", None)
-        if match is not Match.NONE and route_methods:
-            methods |= set(route_methods)
+    for template, operations in request.app.openapi().get("paths", {}).items():
+        t = template.strip("/").split("/")
+        if len(t) == len(parts) and all(
+            a == b or (a.startswith("{") and a.endswith("}")) for a, b in zip(t, parts, strict=True)
+        ):
+            methods |= {m.upper() for m in operations if m.upper() in _METHODS}
+    if "GET" in methods:
+        methods.add("HEAD")
     return sorted(methods)
 
 

@@ -15,6 +15,7 @@ from service.core.localization import LocalizationService
 from service.errors import RequestValidationError
 from service.wire import (
     MAP_NAME_PATTERN,
+    MAX_VERSION,
     Job,
     JobPage,
     JobState,
@@ -28,7 +29,7 @@ router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[Depends(require_a
                    responses=ADMIN_ERRORS)  # fmt: skip
 
 MapPath = Annotated[str, Path(pattern=MAP_NAME_PATTERN, description="map name")]
-VersionPath = Annotated[int, Path(ge=1, description="version number")]
+VersionPath = Annotated[int, Path(ge=1, le=MAX_VERSION, description="version number")]
 
 
 def _service(request: Request) -> LocalizationService:

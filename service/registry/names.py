@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 
 from service.errors import InvalidInputError
-from service.wire import MAP_NAME_PATTERN
+from service.wire import MAP_NAME_PATTERN, MAX_VERSION
 
 _MAP_NAME = re.compile(MAP_NAME_PATTERN)
 
@@ -22,7 +22,10 @@ def check_map_name(name: object) -> str:
 
 
 def check_version(version: object) -> int:
-    """``version`` as an int if it is a positive integer, else :class:`InvalidInputError`."""
-    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise InvalidInputError(f"invalid version {version!r}: versions are integers >= 1")
+    """``version`` as an int if it is an integer in [1, 2^63 − 1], else
+    :class:`InvalidInputError`."""
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= MAX_VERSION:
+        raise InvalidInputError(
+            f"invalid version {version!r}: versions are integers from 1 to {MAX_VERSION}"
+        )
     return version

@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from service.encoding import save_model
 from service.errors import ConflictError, InvalidInputError, NotFoundError
-from service.registry import Registry
+from service.registry import Registry, check_version
 
 
 def test_first_version_auto_activates_later_ones_do_not(registry, publish, model, other_model):
@@ -179,3 +179,12 @@ def test_an_emptied_map_auto_activates_its_next_version(registry, publish, model
     registry.delete_version("route-a", 1)
     assert registry.get_map("route-a").versions == []
     assert publish(other_model).active
+
+
+def test_version_numbers_outside_sqlite_integers_are_invalid_input(registry: Registry) -> None:
+    assert check_version(2**63 - 1) == 2**63 - 1
+    for bad in (0, -1, 2**63, 10**30, True, 1.0):
+        with pytest.raises(InvalidInputError, match="versions are integers from 1 to"):
+            check_version(bad)
+        with pytest.raises(InvalidInputError):
+            registry.get_version("route-a", bad)  # type: ignore[arg-type]
