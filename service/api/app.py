@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from service.api import routes_admin, routes_health, routes_localize
+from service.api import access_log, routes_admin, routes_health, routes_localize
 from service.api.auth import AdminGate
 from service.api.companions import Companion
 from service.api.errors import install_error_handlers
@@ -38,6 +38,7 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        access_log.install(AdminGate.PREFIXES)  # after the server configured its loggers
         ctx.start()
         started: list[Companion] = []
         try:

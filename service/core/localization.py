@@ -16,6 +16,7 @@ from service.core.model_store import LoadedModel, ModelStore
 from service.core.uploads import parse_route, store_descriptors
 from service.encoding import ModelParams, check_descriptors
 from service.errors import (
+    ArtifactError,
     ConflictError,
     DimensionMismatchError,
     EmptyInputError,
@@ -103,6 +104,13 @@ class LocalizationService:
             )  # fmt: skip
         self.store.refresh()
         loaded = self.store.get(name)
+        failure = self.store.load_error(name)
+        if loaded is None and isinstance(failure, ArtifactError):
+            raise ArtifactError(
+                f"map {name!r} version {info.active_version} cannot be served: its artifact is "
+                "corrupt or unreadable (details in the server log and /readyz); activate another "
+                "version or upload the route again", map=name, version=info.active_version,
+            )  # fmt: skip
         if loaded is None:
             raise UnavailableError(
                 f"map {name!r} version {info.active_version} is not loaded yet; retry shortly",

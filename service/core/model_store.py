@@ -67,6 +67,7 @@ class ModelStore:
         self._models: Mapping[str, LoadedModel] = MappingProxyType({})
         self._expected: frozenset[str] = frozenset()
         self._errors: dict[str, str] = {}
+        self._failures: dict[str, GridplaceError] = {}
         self._generation: int | None = None
         self._retry_at = 0.0
         self._lock = threading.Lock()  # one refresher at a time; readers never take it
@@ -80,6 +81,10 @@ class ModelStore:
 
     def snapshot(self) -> Mapping[str, LoadedModel]:
         return self._models
+
+    def load_error(self, name: str) -> GridplaceError | None:
+        """Why the active version of ``name`` failed to load at the last refresh, if it did."""
+        return self._failures.get(name)
 
     def ready(self) -> bool:
         """True once every map with an active version has that version loaded."""
@@ -110,6 +115,7 @@ class ModelStore:
             new: dict[str, LoadedModel] = {}
             expected: set[str] = set()
             errors: dict[str, str] = {}
+            failures: dict[str, GridplaceError] = {}
             for info in self._registry.list_maps():
                 if info.active_version is None:
                     continue
@@ -123,6 +129,7 @@ class ModelStore:
                     log.info("loaded map %s version %s", info.name, info.active_version)
                 except GridplaceError as exc:
                     errors[info.name] = f"version {info.active_version}: {exc.message}"
+                    failures[info.name] = exc
                     log.error("cannot load map %s v%s: %s", info.name, info.active_version, exc)
                     if have is not None:  # keep serving the previous version
                         new[info.name] = have
@@ -132,6 +139,7 @@ class ModelStore:
             self._models = MappingProxyType(new)  # the atomic swap
             self._expected = frozenset(expected)
             self._errors = errors
+            self._failures = failures
             self._generation = gen
             # failed loads are retried, but not more often than every few seconds
             self._retry_at = time.monotonic() + max(5.0 * self._interval, 2.0)

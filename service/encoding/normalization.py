@@ -10,7 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.errors import InputOverflowError
+
 _MIN_STD = 1e-8  # constant columns (black frames, borders) are centred, not divided by ~0
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -35,9 +38,26 @@ class Normalizer:
         return cls(mean=mean.astype(np.float32), scale=std.astype(np.float32))
 
     def transform(self, X: np.ndarray) -> np.ndarray:
-        return (np.asarray(X, dtype=np.float64) - self.mean.astype(np.float64)) / self.scale.astype(
-            np.float64
-        )
+        """z-scores of ``X``; :class:`InputOverflowError` for values so far from the route's
+        scale that a linear score over the ``d`` columns could overflow float32 (the precision
+        of stored weights and of float32 queries): ``|z| ≤ float32 max / d``."""
+        X = np.asarray(X, dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            Z = (X - self.mean.astype(np.float64)) / self.scale.astype(np.float64)
+        limit = _FLOAT32_MAX / max(1, Z.shape[-1])
+        if Z.size and not (-limit <= Z.min() and Z.max() <= limit):  # NaN fails both
+            self._overflow(X, Z, limit)
+        return Z
+
+    def _overflow(self, X: np.ndarray, Z: np.ndarray, limit: float) -> None:
+        X2, Z2 = np.atleast_2d(X), np.atleast_2d(Z)
+        row, col = (int(i) for i in np.argwhere(~(np.abs(Z2) <= limit))[0])
+        raise InputOverflowError(
+            f"descriptors overflow once normalised with the route's statistics: row {row}, "
+            f"column {col} is {X2[row, col]:.6g}, (x − mean)/std = {Z2[row, col]:.6g}, beyond "
+            f"±{limit:.3g} (float32 max / d); send descriptors on the scale of the route's",
+            row=row, column=col, limit=limit,
+        )  # fmt: skip
 
     @property
     def nbytes(self) -> int:
