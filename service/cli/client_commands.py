@@ -31,6 +31,7 @@ from service.client import GridplaceClient, Job, JobFailedError
 from service.client.calls import options_of
 from service.encoding.phases import parse_periods
 from service.errors import InvalidInputError
+from service.npyfile import load_npy
 
 app = typer.Typer(help="Talk to a running gridplace server (REST).", no_args_is_help=True)
 console = Console()
@@ -74,8 +75,6 @@ def _rows(spec: str | None, n: int) -> slice:
 
 
 def _load_queries(path: Path, rows: str | None) -> tuple[np.ndarray, int]:
-    from service.encoding import load_npy
-
     X = np.asarray(load_npy(path))
     X = X[None, :] if X.ndim == 1 else X
     sl = _rows(rows, X.shape[0])

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import zipfile
+from collections.abc import Callable
 from typing import IO
 
 import numpy as np
@@ -25,30 +26,25 @@ from service.errors import (
     PayloadTooLargeError,
     UnsafeFileError,
 )
+from service.npyfile import check_numeric, read_header
 
 BLOCK_BYTES = 1 << 20
-MAX_HEADER_BYTES = 10_000  # numpy's own default bound on a header it will parse
+ShapeCheck = Callable[[int, int], None]  # (rows, columns) → raises if the route is unusable
 
 
 def read_npy_descriptors(fh: IO[bytes], what: str, budget_bytes: int, size: int | None = None,
-                         min_rows: int = 2) -> np.ndarray:  # fmt: skip
+                         min_rows: int = 2, check: ShapeCheck | None = None) -> np.ndarray:  # fmt: skip
     """``(N, d)`` float32 descriptors from a ``.npy`` stream positioned at its start.
 
-    ``size``: the bytes the stream holds (None: measured by seeking to its end)."""
+    ``size``: the bytes the stream holds (None: measured by seeking to its end). ``check``
+    sees the declared shape once it is known to be within budget and present, before any
+    data is read."""
     if size is None:
         start = fh.tell()
         size = fh.seek(0, io.SEEK_END) - start
         fh.seek(start)
-    try:
-        version = np.lib.format.read_magic(fh)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh, MAX_HEADER_BYTES)
-        elif version == (2, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh, MAX_HEADER_BYTES)
-        else:
-            raise UnsafeFileError(f"{what}: .npy format version {version} is not supported")
-    except (ValueError, TypeError, SyntaxError, EOFError) as exc:
-        raise UnsafeFileError(f"{what} is not a valid .npy file: {exc}") from exc
+    header = read_header(fh, what)
+    shape, fortran, dtype = header.shape, header.fortran_order, header.dtype
     rows, cols = _check_header(what, shape, dtype, min_rows)
     declared = rows * cols * dtype.itemsize
     as_float32 = rows * cols * 4
@@ -66,18 +62,13 @@ def read_npy_descriptors(fh: IO[bytes], what: str, budget_bytes: int, size: int 
             f"({declared} bytes) but the file holds {held} bytes of data",
             declared_bytes=declared, data_bytes=held,
         )  # fmt: skip
+    if check is not None:
+        check(rows, cols)
     return _stream_into_float32(fh, what, rows, cols, dtype, fortran)
 
 
 def _check_header(what: str, shape: tuple[int, ...], dtype: np.dtype, min_rows: int) -> tuple[int, int]:
-    if dtype.hasobject:
-        raise UnsafeFileError(
-            f"{what} holds pickled Python objects; only numeric arrays are accepted"
-        )
-    if dtype.fields is not None or dtype.subdtype is not None or dtype.kind not in "biuf":
-        raise UnsafeFileError(
-            f"{what}: the array must be numeric (bool, int or float), got dtype {dtype}"
-        )
+    check_numeric(dtype, what)
     if len(shape) != 2:
         raise DimensionMismatchError(
             f"{what} must be a 2-D array (rows = frames), got {len(shape)} dimension(s)",
@@ -127,8 +118,8 @@ def _stream_into_float32(fh: IO[bytes], what: str, rows: int, cols: int, dtype: 
     return out
 
 
-def read_npz_descriptors(fh: IO[bytes], what: str, budget_bytes: int,
-                         min_rows: int = 2) -> np.ndarray:  # fmt: skip
+def read_npz_descriptors(fh: IO[bytes], what: str, budget_bytes: int, min_rows: int = 2,
+                         check: ShapeCheck | None = None) -> np.ndarray:  # fmt: skip
     """``(N, d)`` float32 descriptors of an ``.npz``'s ``descriptors`` (else first) array."""
     try:
         zf = zipfile.ZipFile(fh)
@@ -143,6 +134,6 @@ def read_npz_descriptors(fh: IO[bytes], what: str, budget_bytes: int,
         try:
             with zf.open(info) as member:  # decompresses lazily, never beyond file_size
                 return read_npy_descriptors(member, label, budget_bytes, size=info.file_size,
-                                            min_rows=min_rows)  # fmt: skip
+                                            min_rows=min_rows, check=check)  # fmt: skip
         except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError, RuntimeError) as exc:
             raise UnsafeFileError(f"{label} is a corrupt archive member: {exc}") from exc

@@ -3,6 +3,7 @@ below them, so validation, errors, metrics and hot-swap semantics are the same e
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -14,7 +15,7 @@ import numpy as np
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import LoadedModel, ModelStore
 from service.core.uploads import parse_route, store_descriptors
-from service.encoding import ModelParams, check_descriptors
+from service.encoding import ModelParams, check_descriptors, check_route
 from service.errors import (
     ArtifactError,
     ConflictError,
@@ -226,22 +227,25 @@ class LocalizationService:
         model_params = ModelParams.parse(**params)
         self.backend.check_available()  # Redis down → 503 before any heavy work
         config = parse_extractor_config(extractor).model_dump() if extractor else None
-        limit = self.settings.max_upload_mb * 1024 * 1024
-        X, source_kind = parse_route(filename, fh, limit, lambda: make_extractor(config))
-        if source_kind == "images" and config is None:
-            config = parse_extractor_config(None).model_dump()
-        if config is not None:
-            d = make_extractor(config).n_features
-            if d != X.shape[1]:
+        image_config = parse_extractor_config(config)  # the default for image archives
+        extractor_once = functools.cache(lambda: make_extractor(config))  # built (checked) once
+
+        def check(n_frames: int, n_features: int) -> None:
+            """Everything the shape decides, before the data is read (npy header, image count)."""
+            d = extractor_once().n_features if config is not None else None
+            if d is not None and d != n_features:
                 raise DimensionMismatchError(
-                    f"the extractor {config['kind']} produces d={d} but the uploaded "
-                    f"descriptors have d={X.shape[1]}", expected=d, got=int(X.shape[1]),
+                    f"the extractor {image_config.kind} produces d={d} but the uploaded "
+                    f"descriptors have d={n_features}", expected=d, got=n_features,
                 )  # fmt: skip
-        if model_params.n_chunks > X.shape[0] // 2:
-            raise InvalidInputError(
-                f"n_chunks={model_params.n_chunks} is too many for a {X.shape[0]}-frame route"
-            )
-        self.registry.check_width(name, int(X.shape[1]), allow_dimension_change)
+            check_route(model_params, n_frames, n_features)
+            self.registry.check_width(name, n_features, allow_dimension_change)
+
+        limit = self.settings.max_upload_mb * 1024 * 1024
+        X, source_kind = parse_route(filename, fh, limit, extractor_once, check,
+                                     image_features=image_config.n_features)  # fmt: skip
+        if source_kind == "images" and config is None:
+            config = image_config.model_dump()
         route = store_descriptors(self.settings.data_dir, X, source_kind)  # only valid data lands
         source = RouteSource(content_sha256=route.sha256, n_frames=route.n_frames,
                              n_features=route.n_features,

@@ -24,10 +24,12 @@ from service.core.array_upload import read_npy_descriptors, read_npz_descriptors
 from service.encoding import check_descriptors
 from service.errors import EmptyInputError, PayloadTooLargeError, UnsafeFileError
 from service.imaging import Extractor, extract_blobs, is_image_name
+from service.npyfile import describe
 
 MAX_MEMBERS = 1_000_000
 MAX_RATIO = 1000  # zip: declared size / compressed size above this is refused as a bomb
 _CHUNK = 1 << 20
+RouteCheck = Callable[[int, int], None]  # (n_frames, n_features) → raises if unusable
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,8 @@ def sniff_kind(filename: str, head: bytes) -> str:
     if not head:
         raise EmptyInputError(f"the upload {filename!r} is empty (0 bytes)")
     raise UnsafeFileError(
-        f"the upload {filename!r} is neither .npy/.npz descriptors nor a .zip/.tar of images"
+        f"the upload {filename!r} is neither .npy/.npz descriptors nor a .zip/.tar of images: "
+        f"it looks like {describe(head)}"
     )
 
 
@@ -146,8 +149,14 @@ def parse_route(
     fh: IO[bytes],
     limit_bytes: int,
     extractor_factory: Callable[[], Extractor],
+    check: RouteCheck | None = None,
+    image_features: int | None = None,
 ) -> tuple[np.ndarray, str]:
-    """The route's float32 ``(N, d)`` descriptors and ``"npy"`` or ``"images"``."""
+    """The route's float32 ``(N, d)`` descriptors and ``"npy"`` or ``"images"``.
+
+    ``check(N, d)`` runs as soon as the shape is known and before the data is read: from the
+    ``.npy`` header, or from an archive's image count and ``image_features`` (the extractor's
+    d), so parameters that cannot fit the route are refused without decoding anything."""
     fh.seek(0)
     head = fh.read(512)
     kind = sniff_kind(filename, head)
@@ -155,11 +164,13 @@ def parse_route(
     if kind == "npy":
         what = f"descriptors in {filename!r}"
         if head.startswith(b"\x93NUMPY"):
-            return read_npy_descriptors(fh, what, limit_bytes), "npy"
-        return read_npz_descriptors(fh, what, limit_bytes), "npy"
+            return read_npy_descriptors(fh, what, limit_bytes, check=check), "npy"
+        return read_npz_descriptors(fh, what, limit_bytes, check=check), "npy"
     n = _count_images(kind, fh)
     if n == 0:
         raise EmptyInputError(f"the archive {filename!r} contains no image files")
+    if check is not None and image_features is not None and n >= 2:
+        check(n, image_features)
     fh.seek(0)
     members = _zip_members(fh, limit_bytes) if kind == "zip" else _tar_members(fh, limit_bytes)
     first = next(members)  # validate sizes before building a (possibly heavy) extractor

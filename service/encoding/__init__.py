@@ -15,7 +15,9 @@ from service.encoding.factory import ModelParams, build_model
 from service.encoding.footprint import Footprint
 from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
-from service.encoding.validation import check_descriptors, load_npy
+from service.encoding.route_checks import check_route
+from service.encoding.validation import check_descriptors
+from service.npyfile import load_npy
 
 __all__ = [
     "ChunkedPlaceEncoder",
@@ -30,6 +32,7 @@ __all__ = [
     "auto_periods",
     "build_model",
     "check_descriptors",
+    "check_route",
     "faiss_available",
     "index_to_labels",
     "labels_to_index",

@@ -7,14 +7,16 @@ unchunked route (``n_chunks = 1``) gets a :class:`PhaseEncoder`, a longer one a
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from service.encoding.base import PlaceRecognizer
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
 from service.errors import InvalidParameterError
+
+Period = Annotated[int, Field(ge=2, le=2**31 - 1)]
 
 
 class ModelParams(BaseModel):
@@ -23,28 +25,25 @@ class ModelParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     n_patterns: int = Field(2, ge=1, le=16, description="number of phase encoders k")
-    periods: tuple[int, ...] | None = Field(None, description="explicit periods τ1…τk")
+    periods: tuple[Period, ...] | None = Field(
+        None, min_length=1, max_length=64, description="explicit periods τ1…τk"
+    )
     rho: float = Field(0.5, gt=0.0, le=1.0, description="fraction of columns per encoder")
-    gamma: float | None = Field(None, ge=1.0, description="L1 bound of pattern weights")
+    gamma: float | None = Field(
+        None, ge=1.0, allow_inf_nan=False, description="L1 bound of pattern weights"
+    )
     trainer: Literal["logreg", "svm", "ridge", "torch"] = "logreg"
-    C: float = Field(4.0, gt=0.0, description="inverse regularisation strength")
+    C: float = Field(4.0, gt=0.0, allow_inf_nan=False, description="inverse regularisation strength")
     decode: Literal["joint", "argmax"] = "joint"
     beam_width: int = Field(64, ge=1, le=100_000)
     dtype: Literal["float64", "float32", "float16", "int8"] = "float32"
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
-    top_chunks: int = Field(2, ge=1)
+    top_chunks: int = Field(2, ge=1, le=100_000)
     n_jobs: int = Field(
         1, ge=-1, description="parallel chunk processes, or one-vs-rest threads without chunks"
     )
-    random_state: int | None = 0
-
-    @field_validator("periods")
-    @classmethod
-    def _periods(cls, v: tuple[int, ...] | None) -> tuple[int, ...] | None:
-        if v is not None and (len(v) == 0 or any(p < 2 for p in v)):
-            raise ValueError("every period must be an integer >= 2")
-        return v
+    random_state: int | None = Field(0, ge=0, le=2**32 - 1, description="seed of the trainers")
 
     @classmethod
     def parse(cls, **kwargs: object) -> ModelParams:

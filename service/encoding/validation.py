@@ -1,10 +1,6 @@
-"""Input checks shared by every estimator, and safe loading of ``.npy`` descriptor files."""
+"""Input checks shared by every estimator (``.npy`` files are read by :mod:`service.npyfile`)."""
 
 from __future__ import annotations
-
-import io
-import os
-from pathlib import Path
 
 import numpy as np
 
@@ -13,7 +9,6 @@ from service.errors import (
     EmptyInputError,
     InvalidInputError,
     NonFiniteInputError,
-    UnsafeFileError,
 )
 
 
@@ -61,38 +56,5 @@ def check_descriptors(
             f"{what} contain NaN or infinite values (first at row {bad[0]}, column {bad[1]})",
             row=int(bad[0]),
             column=int(bad[1]),
-        )
-    return arr
-
-
-def load_npy(source: str | os.PathLike[str] | bytes) -> np.ndarray:
-    """Load a numeric ``.npy`` (or the single/first array of an ``.npz``) without pickle."""
-    if isinstance(source, bytes):
-        fh: io.BytesIO | Path = io.BytesIO(source)
-    else:
-        fh = Path(source)
-        if not fh.is_file():
-            raise InvalidInputError(f"no such file: {fh}")
-    try:
-        obj = np.load(fh, allow_pickle=False)
-        if isinstance(obj, np.lib.npyio.NpzFile):
-            with obj:
-                if not obj.files:
-                    raise EmptyInputError("the .npz archive holds no array")
-                key = "descriptors" if "descriptors" in obj.files else obj.files[0]
-                arr = obj[key]
-        else:
-            arr = obj
-    except ValueError as exc:
-        if "pickle" in str(exc).lower():
-            raise UnsafeFileError(
-                "the file holds pickled Python objects; only numeric arrays are accepted"
-            ) from exc
-        raise UnsafeFileError(f"not a valid .npy/.npz file: {exc}") from exc
-    except (OSError, EOFError) as exc:
-        raise UnsafeFileError(f"not a valid .npy/.npz file: {exc}") from exc
-    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "biuf":
-        raise UnsafeFileError(
-            f"the array must be numeric (bool, int or float), got dtype {getattr(arr, 'dtype', '?')}"
         )
     return arr

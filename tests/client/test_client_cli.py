@@ -106,5 +106,10 @@ def test_errors_print_their_code_and_exit_2(
     np.save(bad, np.full((30, 4), np.nan), allow_pickle=False)
     r = _run(server, "upload", "bad", str(bad), "--trainer", "ridge", "--wait")
     assert r.exit_code == 2 and "error [" in r.output  # refused at upload or failed job
+    csv = tmp_path / "queries.csv"
+    np.savetxt(csv, np.zeros((3, 4)), delimiter=",")
+    r = _run(server, "localize", "synth", "--npy", str(csv))
+    assert r.exit_code == 2 and "is not a .npy file" in r.output and "CSV" in r.output
+    assert "pickled" not in r.output
     r = runner.invoke(app, ["client", "status", "--url", f"http://127.0.0.1:{free_port()}"])
     assert r.exit_code == 2 and "error [server_unreachable]" in r.output

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import pickle
 from pathlib import Path
 
@@ -105,8 +106,43 @@ def test_pickled_npy_is_refused(tmp_path: Path) -> None:
         load_npy(path)
     raw = tmp_path / "raw.npy"
     raw.write_bytes(pickle.dumps(np.zeros(3)))
-    with pytest.raises(UnsafeFileError):
+    with pytest.raises(UnsafeFileError, match="not a .npy file: it looks like a Python pickle"):
         load_npy(raw)
+
+
+def _npy_header(shape: tuple[int, ...]) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.zeros(shape, np.float32))
+    return buf.getvalue()[:128]  # the header alone, no data
+
+
+@pytest.mark.parametrize(("content", "needle"), [
+    (b"0.1,0.2,0.3\n0.4,0.5,0.6\n", "not a .npy file: it looks like text with delimited numbers"),
+    (b"just some notes\n", "not a .npy file: it looks like a text file"),
+    (b"\x89PNG\r\n\x1a\n" + bytes(30), "not a .npy file: it looks like an image"),
+    (b"\x93NUMPY\x01\x00" + b"\x10\x00{'descr': '<f4',", "not a valid .npy file: corrupt header"),
+    (_npy_header((4, 2)), "truncated: its header declares shape (4, 2)"),
+])  # fmt: skip
+def test_what_a_file_is_is_said_before_anything_is_loaded(tmp_path: Path, content: bytes,
+                                                          needle: str) -> None:  # fmt: skip
+    path = tmp_path / "x.npy"
+    path.write_bytes(content)
+    with pytest.raises(UnsafeFileError, match=needle.replace("(", r"\(").replace(")", r"\)")):
+        load_npy(path)
+
+
+def test_the_header_is_checked_before_the_data_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "big.npy"
+    np.save(path, np.zeros((50, 3), np.float32))
+    seen = []
+
+    def refuse(header: object) -> None:
+        seen.append(header)
+        raise InvalidParameterError("no")
+
+    with pytest.raises(InvalidParameterError):
+        load_npy(path, check=refuse)
+    assert seen[0].shape == (50, 3) and seen[0].nbytes == 600  # type: ignore[attr-defined]
 
 
 def test_non_numeric_npy_and_missing_file(tmp_path: Path) -> None:

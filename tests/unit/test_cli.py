@@ -84,6 +84,15 @@ def test_bad_parameters_exit_non_zero_with_a_message(
     assert not (files["root"] / "never").exists()
 
 
+def test_a_csv_is_named_as_such_not_as_pickled_objects(files: dict[str, Path]) -> None:
+    csv = files["root"] / "ref.csv"
+    np.savetxt(csv, np.load(files["ref"])[:20], delimiter=",")
+    res = run("train", csv, "--out", files["root"] / "never-csv", "--trainer", "ridge")
+    assert res.returncode == 2, res.stderr
+    assert "is not a .npy file" in res.stderr and "CSV" in res.stderr
+    assert "pickled" not in res.stderr and "Traceback" not in res.stderr
+
+
 def test_pickled_input_is_refused(files: dict[str, Path]) -> None:
     evil = files["root"] / "evil.npy"
     np.save(evil, np.array([object()], dtype=object), allow_pickle=True)
