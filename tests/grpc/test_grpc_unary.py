@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import re
+from pathlib import Path
 from typing import Any
 
 import grpc
@@ -108,19 +110,45 @@ def test_list_and_get_maps_are_admin_calls(served: Served) -> None:
         parked = await stub.GetMap(pb.GetMapRequest(name="parked"), metadata=ADMIN)
         with pytest.raises(grpc.aio.AioRpcError) as anon:
             await stub.ListMaps(pb.ListMapsRequest())
+        with pytest.raises(grpc.aio.AioRpcError) as anon_get:
+            await stub.GetMap(pb.GetMapRequest(name="route"))
         with pytest.raises(grpc.aio.AioRpcError) as missing:
             await stub.GetMap(pb.GetMapRequest(name="nowhere"), metadata=ADMIN)
-        return maps, route, parked, anon.value, missing.value
+        return maps, route, parked, anon.value, anon_get.value, missing.value
 
-    maps, route, parked, anon, missing = run(served, body)
+    maps, route, parked, anon, anon_get, missing = run(served, body)
     assert {"route", "imgs", "parked", "swap"} <= {m.name for m in maps.maps}
     assert route.active_version == 1 and route.serving_version == 1
     assert route.active.n_frames == served.reference.shape[0] and route.active.n_features == 64
     assert route.active.paper_bytes > 0 and len(route.active.sha256) == 64
     assert not route.active.image_extractor and route.created_at.seconds > 0
     assert not parked.HasField("active_version") and list(parked.versions) == [1]
-    assert anon.code() == grpc.StatusCode.UNAUTHENTICATED
+    assert anon.code() == anon_get.code() == grpc.StatusCode.UNAUTHENTICATED
     assert missing.code() == grpc.StatusCode.NOT_FOUND
+    assert route.active.kind in _documented_kinds()
+
+
+PROTO = Path(__file__).resolve().parents[2] / "protos/gridplace/v1/localization.proto"
+
+
+def _documented_kinds() -> set[str]:
+    line = next(ln for ln in PROTO.read_text().splitlines() if "string kind = 4;" in ln)
+    return set(re.findall(r'"([a-z_]+)"', line))
+
+
+def test_the_proto_says_what_the_server_does() -> None:
+    from service.encoding import ChunkedPlaceEncoder, PhaseEncoder
+
+    assert _documented_kinds() == {PhaseEncoder.kind, ChunkedPlaceEncoder.kind}
+    lines = PROTO.read_text().splitlines()
+    for rpc in ("ListMaps", "GetMap"):  # every admin RPC says so in its own comment
+        at = next(i for i, ln in enumerate(lines) if f"rpc {rpc}(" in ln)
+        comment = []
+        for ln in reversed(lines[:at]):
+            if not ln.strip().startswith("//"):
+                break
+            comment.append(ln)
+        assert "Admin call" in " ".join(comment) and "Bearer" in " ".join(comment), rpc
 
 
 def test_health_is_serving_once_ready(served: Served) -> None:

@@ -74,14 +74,16 @@ class LocalizationServicer:
         raise NotImplementedError('Method not implemented!')
 
     def ListMaps(self, request, context):
-        """Maps and their active versions (admin: metadata `authorization: Bearer <token>`).
+        """Every map and its versions. Admin call: metadata `authorization: Bearer <token>`.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
     def GetMap(self, request, context):
-        """Missing associated documentation comment in .proto file."""
+        """One map with its active version's details. Admin call: metadata
+        `authorization: Bearer <token>`.
+        """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
