@@ -7,6 +7,8 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from pydantic import Field
+from pydantic.json_schema import SkipJsonSchema
 from starlette.datastructures import FormData, UploadFile
 
 from service.api.auth import require_admin
@@ -64,8 +66,10 @@ async def upload_route(
     request: Request,
     response: Response,
     name: MapPath,
-    idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", min_length=1,
-                                                  max_length=200)] = None,  # fmt: skip
+    idempotency_key: Annotated[
+        Annotated[str, Field(min_length=1, max_length=200)] | SkipJsonSchema[None],
+        Header(alias="Idempotency-Key", description="the same key for the same map returns the same job"),
+    ] = None,
 ) -> Job:
     """A multipart form: the route as ``file`` and any training options. Everything that can
     be checked from the upload itself is checked before the answer: 202 and the queued job

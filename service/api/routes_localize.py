@@ -7,6 +7,8 @@ import binascii
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request
+from pydantic import Field
+from pydantic.json_schema import SkipJsonSchema
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
@@ -20,9 +22,18 @@ from service.api.schemas import (
 )
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
 from service.errors import EmptyInputError, InvalidInputError
-from service.wire import BatchLocalization, BatchLocalizeRequest, Localization, LocalizeRequest
+from service.wire import (
+    MAP_NAME_PATTERN,
+    BatchLocalization,
+    BatchLocalizeRequest,
+    Localization,
+    LocalizeRequest,
+)
 
 router = APIRouter(prefix="/v1", tags=["localize"])
+# optional parameters: absent, never null (a null would reach the server as the text "null")
+MapParam = Annotated[str, Field(pattern=MAP_NAME_PATTERN)] | SkipJsonSchema[None]
+DimParam = Annotated[int, Field(ge=1)] | SkipJsonSchema[None]
 
 
 def _b64(text: str, field: str) -> bytes:
@@ -106,10 +117,10 @@ def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeRes
 )
 async def localize_batch(
     request: Request,
-    map_q: Annotated[str | None, Query(alias="map", description="map (binary bodies)")] = None,
-    d_q: Annotated[int | None, Query(alias="d", ge=1, description="descriptor size (binary)")] = None,
-    map_h: Annotated[str | None, Header(alias="X-Gridplace-Map")] = None,
-    d_h: Annotated[int | None, Header(alias="X-Gridplace-Dim", ge=1)] = None,
+    map_q: Annotated[MapParam, Query(alias="map", description="the map (binary bodies)")] = None,
+    d_q: Annotated[DimParam, Query(alias="d", description="descriptor size (binary)")] = None,
+    map_h: Annotated[MapParam, Header(alias="X-Gridplace-Map", description="or the map here")] = None,
+    d_h: Annotated[DimParam, Header(alias="X-Gridplace-Dim", description="or d here")] = None,
 ) -> BatchLocalization:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64"}``, a multipart form
     (``map`` + ``images`` files), or an ``application/octet-stream`` body of float32."""

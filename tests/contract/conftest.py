@@ -2,7 +2,9 @@
 the schemathesis run), over a data dir prepared in-process:
 
 * map ``route``: a SYNTHETIC smooth route (N=160, d=24), trainer=ridge, active and served;
-* map ``broken``: the same model whose artifact was corrupted on disk after publication.
+* map ``broken``: the same model whose artifact was corrupted on disk after publication;
+* map ``nordland``: the same model again, the map the schema's examples name, for the fuzzer
+  (which may deactivate or delete it: the other tests use ``route``).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ def contract_data(tmp_path_factory: pytest.TempPathFactory,
     params = PARAMS.model_dump(mode="json")
     registry.publish("route", model, params=params, extractor=None, metrics={}, job_id=None)
     registry.publish("broken", model, params=params, extractor=None, metrics={}, job_id=None)
+    registry.publish("nordland", model, params=params, extractor=None, metrics={}, job_id=None)
     tensors = registry.artifact_dir("broken", 1) / TENSORS
     tensors.chmod(0o644)
     blob = bytearray(tensors.read_bytes())
