@@ -7,112 +7,72 @@ import itertools
 import threading
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
-
-from pydantic import BaseModel
+from typing import Any
 
 from service.encoding import ModelParams, PlaceRecognizer, build_model, load_npy
 from service.errors import ConflictError, DimensionChangeError, NotFoundError, UnavailableError
-
-
-class VersionInfo(BaseModel):
-    map: str
-    version: int
-    active: bool
-    n_frames: int
-    n_features: int
-    kind: str
-    params: dict[str, Any]
-    extractor: dict[str, Any] | None
-    created_at: datetime
-    sha256: str
-    footprint: dict[str, Any]
-    artifact_bytes: int
-    metrics: dict[str, Any]
-    job_id: str | None
-
-
-class MapInfo(BaseModel):
-    name: str
-    active_version: int | None
-    versions: list[int]
-    created_at: datetime
-
-
-class JobInfo(BaseModel):
-    id: str
-    map: str
-    state: Literal["queued", "running", "succeeded", "failed"]
-    stage: str = "queued"
-    chunks_done: int = 0
-    chunks_total: int = 0
-    created_at: datetime
-    started_at: datetime | None = None
-    finished_at: datetime | None = None
-    error: str | None = None
-    version: int | None = None
-    idempotency_key: str | None = None
-    timings: dict[str, float] = {}
-    reused: bool = False
+from service.wire import Job as JobInfo
+from service.wire import MapSummary as MapInfo
+from service.wire import Version as VersionInfo
 
 
 class FakeRegistry:
     def __init__(self) -> None:
-        self._maps: dict[str, MapInfo] = {}
+        self._maps: dict[str, dict[str, Any]] = {}  # mutable MapInfo fields
         self._versions: dict[tuple[str, int], VersionInfo] = {}
         self._models: dict[tuple[str, int], PlaceRecognizer] = {}
         self._gen = 0
         self.loads = 0
         self._lock = threading.Lock()
 
-    def _map(self, name: str) -> MapInfo:
+    def _map(self, name: str) -> dict[str, Any]:
         if name not in self._maps:
             raise NotFoundError(f"unknown map {name!r}")
         return self._maps[name]
 
     def list_maps(self) -> list[MapInfo]:
-        return [m.model_copy() for m in self._maps.values()]
+        return [self.get_map(name) for name in self._maps]
 
     def get_map(self, name: str) -> MapInfo:
-        return self._map(name).model_copy()
+        m = self._map(name)
+        return MapInfo(**{**m, "versions": list(m["versions"])})
 
     def list_versions(self, name: str) -> list[VersionInfo]:
-        m = self._map(name)
-        return [self.get_version(name, v) for v in m.versions]
+        return [self.get_version(name, v) for v in self._map(name)["versions"]]
 
     def get_version(self, name: str, version: int) -> VersionInfo:
         m = self._map(name)
         if (name, version) not in self._versions:
             raise NotFoundError(f"map {name!r} has no version {version}")
         return self._versions[(name, version)].model_copy(
-            update={"active": m.active_version == version}
+            update={"active": m["active_version"] == version}
         )
 
     def active_version(self, name: str) -> VersionInfo | None:
-        m = self._map(name)
-        return None if m.active_version is None else self.get_version(name, m.active_version)
+        active = self._map(name)["active_version"]
+        return None if active is None else self.get_version(name, active)
 
     def activate(self, name: str, version: int) -> VersionInfo:
         self.get_version(name, version)
         with self._lock:
-            self._maps[name].active_version = version
+            self._maps[name]["active_version"] = version
             self._gen += 1
         return self.get_version(name, version)
 
     def deactivate(self, name: str) -> MapInfo:
         self._map(name)
         with self._lock:
-            self._maps[name].active_version = None
+            self._maps[name]["active_version"] = None
             self._gen += 1
         return self.get_map(name)
 
     def delete_version(self, name: str, version: int) -> None:
         m = self._map(name)
         self.get_version(name, version)
-        if m.active_version == version:
+        if m["active_version"] == version:
             raise ConflictError(f"version {version} of {name!r} is active")
         with self._lock:
-            m.versions.remove(version)
+            m["versions"].remove(version)
             del self._versions[(name, version)]
             self._gen += 1
 
@@ -126,9 +86,9 @@ class FakeRegistry:
 
     def check_width(self, name: str, n_features: int, allow_change: bool) -> dict[str, Any] | None:
         m = self._maps.get(name)
-        if m is None or not m.versions:
+        if m is None or not m["versions"]:
             return None
-        ref = m.active_version or max(m.versions)
+        ref = m["active_version"] or max(m["versions"])
         width = self._versions[(name, ref)].n_features
         if width == n_features:
             return None
@@ -142,10 +102,10 @@ class FakeRegistry:
                 job_id: str | None, activate: bool | None = None) -> VersionInfo:  # fmt: skip
         now = datetime.now(UTC)
         with self._lock:
-            m = self._maps.setdefault(name, MapInfo(name=name, active_version=None, versions=[],
-                                                     created_at=now))  # fmt: skip
-            version = max(m.versions, default=0) + 1
-            m.versions.append(version)
+            m = self._maps.setdefault(name, {"name": name, "active_version": None, "versions": [],
+                                             "created_at": now})  # fmt: skip
+            version = max(m["versions"], default=0) + 1
+            m["versions"].append(version)
             fp = model.footprint().to_dict()
             self._versions[(name, version)] = VersionInfo(
                 map=name, version=version, active=False, n_frames=model.n_frames_,
@@ -154,14 +114,14 @@ class FakeRegistry:
                 artifact_bytes=int(fp["actual_bytes"]), metrics=metrics, job_id=job_id,
             )  # fmt: skip
             self._models[(name, version)] = model
-            if m.active_version is None if activate is None else activate:
-                m.active_version = version
+            if m["active_version"] is None if activate is None else activate:
+                m["active_version"] = version
             self._gen += 1
         return self.get_version(name, version)
 
     def create_empty_map(self, name: str) -> None:
-        self._maps[name] = MapInfo(name=name, active_version=None, versions=[],
-                                   created_at=datetime.now(UTC))  # fmt: skip
+        self._maps[name] = {"name": name, "active_version": None, "versions": [],
+                            "created_at": datetime.now(UTC)}  # fmt: skip
 
 
 class InlineBackend:
@@ -186,8 +146,10 @@ class InlineBackend:
             if idempotency_key and (job.map, job.idempotency_key) == (map_name, idempotency_key):
                 return job
         now = datetime.now(UTC)
-        job = JobInfo(id=f"job-{next(self._ids)}", map=map_name, state="running",
-                      created_at=now, started_at=now, idempotency_key=idempotency_key)  # fmt: skip
+        job = JobInfo(id=f"job-{next(self._ids)}", map=map_name, state="running", stage="training",
+                      chunks_done=0, chunks_total=1, created_at=now, started_at=now,
+                      finished_at=None, error=None, version=None,
+                      idempotency_key=idempotency_key)  # fmt: skip
         self.submitted.append((map_name, route, params, extractor))
         model = build_model(params).fit(load_npy(route))
         info = self.registry.publish(map_name, model, params=params.model_dump(mode="json"),
