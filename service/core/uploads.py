@@ -169,11 +169,11 @@ def parse_route(
     n = _count_images(kind, fh)
     if n == 0:
         raise EmptyInputError(f"the archive {filename!r} contains no image files")
-    if check is not None and image_features is not None and n >= 2:
-        check(n, image_features)
     fh.seek(0)
     members = _zip_members(fh, limit_bytes) if kind == "zip" else _tar_members(fh, limit_bytes)
     first = next(members)  # validate sizes before building a (possibly heavy) extractor
+    if check is not None and image_features is not None and n >= 2:
+        check(n, image_features)  # before decoding a single image
     extractor = extractor_factory()
 
     def chain() -> Iterator[tuple[str, bytes]]:

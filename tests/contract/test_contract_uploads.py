@@ -4,6 +4,7 @@ server process)."""
 from __future__ import annotations
 
 import io
+import zipfile
 
 import httpx
 import numpy as np
@@ -54,3 +55,15 @@ def test_a_declared_shape_is_checked_before_the_data_is_read(api: httpx.Client) 
     r = _upload(api, _npy(X), periods="5,5")
     assert r.status_code == 400, r.text
     assert "smaller than the number of frames 160" in r.json()["message"]  # shape from the header
+
+
+def test_an_image_archive_is_checked_from_its_image_count_before_decoding(api: httpx.Client) -> None:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for i in range(4):
+            zf.writestr(f"frame-{i}.png", b"not decoded: refused before")
+    r = api.post("/v1/maps/checked/routes", headers=AUTH, files={"file": ("r.zip", buf.getvalue())},
+                 data={"trainer": "ridge", "periods": "3", "extractor": "patchnorm",
+                       "width": "32", "height": "16", "patch": "8"})  # fmt: skip
+    assert r.status_code == 400, r.text
+    assert "smaller than the number of frames 4" in r.json()["message"]
