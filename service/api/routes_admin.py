@@ -12,7 +12,7 @@ from pydantic.json_schema import SkipJsonSchema
 from starlette.datastructures import FormData, UploadFile
 
 from service.api.auth import require_admin
-from service.api.schemas import ADMIN_ERRORS, ROUTE_FORM, body_doc
+from service.api.schemas import ADMIN_ERRORS, ROUTE_FORM, MapParam, TextParam, body_doc
 from service.core.localization import LocalizationService
 from service.errors import RequestValidationError
 from service.wire import (
@@ -95,12 +95,11 @@ async def upload_route(
 @router.get("/jobs", response_model=JobPage, summary="Training jobs, newest first (paginated)")
 def list_jobs(
     request: Request,
-    map: Annotated[str | None, Query(pattern=MAP_NAME_PATTERN,  # noqa: A002
-                                     description="only this map's jobs")] = None,  # fmt: skip
-    state: Annotated[list[JobState] | None, Query(
+    map: Annotated[MapParam, Query(description="only this map's jobs")] = None,  # noqa: A002
+    state: Annotated[list[JobState] | SkipJsonSchema[None], Query(
         description="only jobs in these states (repeatable)")] = None,  # fmt: skip
     limit: Annotated[int, Query(ge=1, le=500, description="jobs per page")] = 50,
-    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+    cursor: Annotated[TextParam, Query(description="next_cursor of the previous page")] = None,
 ) -> JobPage:
     jobs, next_cursor = _service(request).list_jobs(map, state, limit, cursor)
     return JobPage(jobs=[Job.model_validate(j) for j in jobs], next_cursor=next_cursor)

@@ -7,8 +7,6 @@ import binascii
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request
-from pydantic import Field
-from pydantic.json_schema import SkipJsonSchema
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
@@ -16,6 +14,8 @@ from service.api.schemas import (
     ERRORS,
     IMAGE_FORM,
     IMAGES_FORM,
+    DimParam,
+    MapParam,
     batch_localization,
     body_doc,
     localization,
@@ -23,7 +23,6 @@ from service.api.schemas import (
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
 from service.errors import EmptyInputError, InvalidInputError
 from service.wire import (
-    MAP_NAME_PATTERN,
     BatchLocalization,
     BatchLocalizeRequest,
     Localization,
@@ -31,9 +30,6 @@ from service.wire import (
 )
 
 router = APIRouter(prefix="/v1", tags=["localize"])
-# optional parameters: absent, never null (a null would reach the server as the text "null")
-MapParam = Annotated[str, Field(pattern=MAP_NAME_PATTERN)] | SkipJsonSchema[None]
-DimParam = Annotated[int, Field(ge=1)] | SkipJsonSchema[None]
 
 
 def _b64(text: str, field: str) -> bytes:

@@ -4,7 +4,10 @@ service-layer results, and the parts of the OpenAPI schema FastAPI cannot derive
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import Field
+from pydantic.json_schema import SkipJsonSchema
 
 from service.core.localization import LocalizeResult
 from service.wire import (
@@ -14,6 +17,11 @@ from service.wire import (
     Localization,
     TrainingOptions,
 )
+
+# optional query/header parameters: absent, never null (a null would arrive as the text "null")
+MapParam = Annotated[str, Field(pattern=MAP_NAME_PATTERN)] | SkipJsonSchema[None]
+DimParam = Annotated[int, Field(ge=1)] | SkipJsonSchema[None]
+TextParam = Annotated[str, Field(min_length=1)] | SkipJsonSchema[None]
 
 ERRORS: dict[int | str, dict[str, Any]] = {
     s: {"model": ErrorBody, "description": d} for s, d in (
