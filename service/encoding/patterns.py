@@ -64,32 +64,42 @@ def sparse_weights(scores: np.ndarray, gamma: float, tol: float = 1e-10) -> np.n
     top = float(a.max(initial=0.0))
     if top <= 0.0:
         return np.zeros_like(a)
-    a = a / top  # scale-free: Δ is searched in [0, 1]
-
-    def normalised(delta: float) -> np.ndarray:
-        s = soft_threshold(a, delta)
-        return s / np.linalg.norm(s)
-
-    w = normalised(0.0)
+    a = a / top  # scale-free: the top score is 1 and Δ is searched in [0, 1)
+    w = _unit(a)
     if w.sum() <= gamma:
         return w
-    lo, hi = 0.0, 1.0  # at Δ → 1 only the largest scores survive: ||w||₁ → 1 ≤ γ
+    # Invariant: ||w(lo)||₁ > γ, and ||w(hi)||₁ ≤ γ whenever hi < 1. Every Δ < 1 keeps the
+    # top column, so no normalisation below ever divides by zero.
+    lo, hi = 0.0, 1.0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        if np.any(a > mid) and normalised(mid).sum() > gamma:
+        if _unit(soft_threshold(a, mid)).sum() > gamma:
             lo = mid
         else:
             hi = mid
         if hi - lo < tol:
             break
-    w = normalised(hi)
-    if not np.isfinite(w).all() or w.sum() > gamma * (1 + 1e-9):
-        # m columns tie for the top score and √m > γ: soft-thresholding cannot separate
-        # them. Spreading unit mass evenly over the first ⌊γ²⌋ of them (by column index)
-        # satisfies both bounds and is optimal up to ||w||₁ rounding (√⌊γ²⌋ ≤ γ).
-        ties = np.flatnonzero(a == a.max())[: max(1, int(np.floor(gamma**2)))]
-        w = np.zeros_like(a)
-        w[ties] = 1.0 / np.sqrt(ties.size)
+    if hi < 1.0:
+        return _unit(soft_threshold(a, hi))
+    return _tied_top(a, gamma)
+
+
+def _unit(s: np.ndarray) -> np.ndarray:
+    """``s / ||s||₂`` for a vector with at least one positive entry."""
+    return s / np.linalg.norm(s)
+
+
+def _tied_top(a: np.ndarray, gamma: float) -> np.ndarray:
+    """The degenerate case where no threshold Δ < 1 meets the L1 bound.
+
+    It happens when m columns tie (to within the search tolerance) for the top score and
+    √m > γ: soft-thresholding shrinks them alike, so ||w||₁ only falls to √m at Δ → 1, where
+    every weight vanishes. Unit mass spread evenly over the first ⌊γ²⌋ exact ties (by column
+    index) satisfies both bounds and is optimal up to ||w||₁ rounding (√⌊γ²⌋ ≤ γ).
+    """
+    ties = np.flatnonzero(a == a.max())[: max(1, int(np.floor(gamma**2)))]
+    w = np.zeros_like(a)
+    w[ties] = 1.0 / np.sqrt(ties.size)
     return w
 
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from service.encoding import PhaseEncoder
 from service.encoding.patterns import bcss, learn_pattern, n_selected, sparse_weights
 from service.errors import InvalidParameterError
 
@@ -50,13 +53,49 @@ def test_sparse_weights_satisfy_both_norm_constraints(scores: np.ndarray, gamma:
         assert w.sum() <= gamma + 1e-6
         # Prop. 1: when the L1 bound binds, ||w||₁ = γ (unless several columns tie for the
         # top score, where soft-thresholding cannot separate them)
-        unconstrained = np.maximum(scores, 0) / np.linalg.norm(np.maximum(scores, 0))
+        positive = np.maximum(scores, 0) / scores.max()  # scaled first: no underflow to 0
+        unconstrained = positive / np.linalg.norm(positive)
         if unconstrained.sum() > gamma and np.count_nonzero(scores == scores.max()) == 1:
             assert w.sum() == pytest.approx(gamma, abs=1e-5)
         # columns with non-positive scores never get weight
         assert (w[scores <= 0] == 0).all()
     else:
         assert (w == 0).all()
+
+
+@pytest.mark.parametrize(("n_tied", "gamma", "kept"), [(10, 2.0, 4), (4, 1.5, 2), (3, 1.0, 1)])
+def test_tied_top_scores_beyond_the_l1_bound_share_the_weight_without_warnings(
+    n_tied: int, gamma: float, kept: int
+) -> None:
+    """√m > γ for m tied top scores: no threshold meets the bound (the search used to end
+    dividing zero by zero); the weight goes evenly to the first ⌊γ²⌋ ties."""
+    scores = np.concatenate([np.full(n_tied, 7.0), [1.0, 0.0, -2.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = sparse_weights(scores, gamma)
+    np.testing.assert_allclose(w[:kept], 1.0 / np.sqrt(kept))
+    assert (w[kept:] == 0).all()
+    assert np.linalg.norm(w) == pytest.approx(1.0) and w.sum() <= gamma + 1e-12
+
+
+def test_a_near_tie_below_the_search_tolerance_keeps_the_top_column() -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = sparse_weights(np.array([1.0, 1.0 - 1e-12, 0.5]), 1.0)
+    np.testing.assert_array_equal(w, [1.0, 0.0, 0.0])
+
+
+def test_identical_columns_train_an_encoder_without_warnings() -> None:
+    """Every column the same (a blank or saturated camera): all BCSS scores tie."""
+    rng = np.random.default_rng(0)
+    X = np.repeat(np.cumsum(rng.standard_normal((120, 1)), axis=0), 16, axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pattern = learn_pattern(X, np.arange(120) % 6, rho=0.5)
+        model = PhaseEncoder(rho=0.5, trainer="ridge").fit(X)
+        pred = model.predict(X)
+    np.testing.assert_array_equal(pattern.columns, np.arange(8))  # ties: lowest indices
+    assert pred.shape == (120,)
 
 
 def test_sparse_weights_are_monotone_in_the_score() -> None:
