@@ -6,12 +6,17 @@ registry dependency.
 >>> model.predict(queries)                                        # frame indices
 """
 
-from service.encoding.artifacts import load_model, read_manifest, save_model
+from service.encoding.artifacts import (
+    check_new_artifact_dir,
+    load_model,
+    read_manifest,
+    save_model,
+)
 from service.encoding.base import Localization, PlaceRecognizer, precision_at
 from service.encoding.baselines import ExactNN, RhythmicEncoder
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
-from service.encoding.factory import ModelParams, build_model
+from service.encoding.factory import ModelParams, build_model, default_trainer
 from service.encoding.footprint import Footprint
 from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
@@ -32,7 +37,9 @@ __all__ = [
     "auto_periods",
     "build_model",
     "check_descriptors",
+    "check_new_artifact_dir",
     "check_route",
+    "default_trainer",
     "faiss_available",
     "index_to_labels",
     "labels_to_index",

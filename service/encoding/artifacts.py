@@ -24,7 +24,7 @@ from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
 from service.encoding.base import PlaceRecognizer
-from service.errors import ArtifactError, ConflictError
+from service.errors import ArtifactError, ConflictError, InvalidInputError
 
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
@@ -96,6 +96,38 @@ def build_manifest(
     }
 
 
+def check_new_artifact_dir(path: str | os.PathLike[str]) -> Path:
+    """Fail now where :func:`save_model` would fail after training: ``path`` exists, or its
+    nearest existing ancestor is not a directory this process can create entries in.
+
+    Writability is probed by creating (and removing) a temporary directory there, which
+    also catches read-only mounts and holds for root. Returns ``path`` as a :class:`Path`.
+    """
+    target = Path(path)
+    if target.exists() or target.is_symlink():
+        raise ConflictError(
+            f"{target} already exists; artifacts are immutable, so give a new directory "
+            "(or remove the old one)",
+            path=str(target),
+        )
+    ancestor = target.absolute().parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise InvalidInputError(
+            f"cannot create {target}: {ancestor} is not a directory", path=str(target)
+        )
+    try:
+        probe = tempfile.mkdtemp(prefix=".gridplace-write-check-", dir=ancestor)
+    except OSError as exc:
+        raise InvalidInputError(
+            f"cannot create {target}: {ancestor} is not writable ({exc.strerror or exc})",
+            path=str(target),
+        ) from exc
+    os.rmdir(probe)
+    return target
+
+
 def save_model(
     model: PlaceRecognizer, path: str | os.PathLike[str], extra: dict[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -103,9 +135,7 @@ def save_model(
 
     ``extra`` is free JSON metadata stored in the manifest (e.g. training metrics).
     """
-    target = Path(path)
-    if target.exists():
-        raise ConflictError(f"artifact {target} already exists; artifacts are immutable")
+    target = check_new_artifact_dir(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     arrays, meta = model._to_arrays()
     manifest = build_manifest(model, meta, extra)

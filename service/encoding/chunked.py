@@ -9,7 +9,7 @@ and :meth:`ChunkedPlaceEncoder.assemble` the result.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -21,11 +21,9 @@ from service.encoding.encoder import PhaseEncoder
 from service.encoding.footprint import Footprint
 from service.encoding.normalization import Normalizer
 from service.encoding.patterns import select_columns
+from service.encoding.progress import ProgressFn, Steps
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
-
-#: progress(stage, done, total) — called from the parent process
-ProgressFn = Callable[[str, int, int], None]
 
 _ENCODER_PARAMS = (
     "n_patterns", "periods", "rho", "gamma", "trainer", "C", "decode", "beam_width", "dtype",
@@ -48,18 +46,29 @@ def plan_chunks(n_frames: int, n_chunks: int) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(sizes)])
 
 
+def _chunk_encoder(params: dict[str, Any]) -> PhaseEncoder:
+    return PhaseEncoder(**{k: params[k] for k in _ENCODER_PARAMS if k in params}, normalize=False)
+
+
 def fit_chunk_encoder(
-    X_chunk: np.ndarray, normalizer: Normalizer, params: dict[str, Any]
+    X_chunk: np.ndarray,
+    normalizer: Normalizer,
+    params: dict[str, Any],
+    progress: ProgressFn | None = None,
 ) -> PhaseEncoder:
     """Train one chunk's encoder on that chunk's raw rows only."""
-    enc = PhaseEncoder(**{k: params[k] for k in _ENCODER_PARAMS if k in params}, normalize=False)
-    return enc._fit_normalised(normalizer.transform(X_chunk))
+    return _chunk_encoder(params)._fit_normalised(normalizer.transform(X_chunk), progress)
 
 
 def fit_chunk_classifier(
-    X: np.ndarray, bounds: np.ndarray, normalizer: Normalizer, params: dict[str, Any]
+    X: np.ndarray,
+    bounds: np.ndarray,
+    normalizer: Normalizer,
+    params: dict[str, Any],
+    progress: ProgressFn | None = None,
 ) -> DigitClassifier:
-    """Pattern-learned linear classifier whose classes are the chunk ids.
+    """Pattern-learned linear classifier whose classes are the chunk ids (``progress``
+    counts one unit per chunk).
 
     Chunks are contiguous, so the BCSS comes from per-chunk means computed one chunk at a
     time; only the ``d̃`` selected columns of all rows are ever materialised.
@@ -87,6 +96,7 @@ def fit_chunk_classifier(
         dtype=params.get("dtype", "float32"),
         random_state=params.get("random_state", 0),
         n_jobs=params.get("n_jobs", 1),
+        progress=Steps(progress, [""], [n_chunks]).step(0),
     )
 
 
@@ -139,21 +149,31 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         bounds = plan_chunks(X.shape[0], int(self.n_chunks))
         params = self.get_params()
         normalizer = Normalizer.fit(X)
-        report = progress or (lambda stage, done, total: None)
-        total = len(bounds)  # the chunk encoders and the chunk classifier
-        report("chunk_classifier", 0, total)
-        classifier = fit_chunk_classifier(X, bounds, normalizer, params)
-        report("chunks", 1, total)
+        steps = self._steps(progress, bounds, params)
+        classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0))
+        steps.done(0)
+        # Chunks fitted in this process report per class; in child processes, per chunk.
+        inline = int(self.n_jobs) == 1
         jobs = (
-            delayed(fit_chunk_encoder)(X[s:e], normalizer, params)
-            for s, e in zip(bounds[:-1], bounds[1:], strict=True)
-        )
+            delayed(fit_chunk_encoder)(X[s:e], normalizer, params,
+                                       steps.scope(c + 1) if inline else None)
+            for c, (s, e) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))
+        )  # fmt: skip
         encoders: list[PhaseEncoder] = []
         runner = Parallel(n_jobs=int(self.n_jobs), return_as="generator")
         for enc in runner(jobs):
             encoders.append(enc)
-            report("chunks", 1 + len(encoders), total)
+            steps.done(len(encoders))
         return self._assemble(normalizer, bounds, classifier, encoders)
+
+    @staticmethod
+    def _steps(progress: ProgressFn | None, bounds: np.ndarray, params: dict[str, Any]) -> Steps:
+        """The chunk classifier (one unit per chunk), then every chunk (its Στ)."""
+        n_chunks = len(bounds) - 1
+        encoder = _chunk_encoder(params)
+        budgets = [n_chunks] + [sum(encoder.periods_for(int(n))) for n in np.diff(bounds)]
+        labels = ["chunk classifier"] + [f"chunk {c + 1}/{n_chunks}" for c in range(n_chunks)]
+        return Steps(progress, labels, budgets)
 
     @classmethod
     def assemble(

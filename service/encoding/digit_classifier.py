@@ -13,6 +13,7 @@ import numpy as np
 
 from service.encoding.decoding import log_probabilities
 from service.encoding.patterns import PatternSelection, learn_pattern
+from service.encoding.progress import StepFn
 from service.encoding.quantization import QuantizedLinear, pack_columns, unpack_columns
 from service.encoding.trainers import train_linear
 
@@ -51,10 +52,13 @@ class DigitClassifier:
         dtype: str,
         random_state: int | None,
         n_jobs: int = 1,
+        progress: StepFn | None = None,
     ) -> DigitClassifier:
-        """Train the linear model on rows already restricted to ``pattern.columns``."""
+        """Train the linear model on rows already restricted to ``pattern.columns``;
+        ``progress(done, total)`` follows its classes."""
         W, b = train_linear(
-            X_sel, labels, n_classes, trainer, C=C, random_state=random_state, n_jobs=n_jobs
+            X_sel, labels, n_classes, trainer, C=C, random_state=random_state, n_jobs=n_jobs,
+            progress=progress,
         )
         return cls(pattern.columns, QuantizedLinear.from_dense(W, b, dtype), pattern)
 

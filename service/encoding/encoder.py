@@ -14,6 +14,7 @@ from service.encoding.footprint import Footprint
 from service.encoding.normalization import Normalizer
 from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, index_to_labels, validate_periods
+from service.encoding.progress import ProgressFn, Steps
 from service.encoding.quantization import check_dtype
 from service.encoding.trainers import TRAINERS
 from service.encoding.validation import check_descriptors
@@ -88,25 +89,34 @@ class PhaseEncoder(PlaceRecognizer):
         if not self.C > 0:
             raise InvalidParameterError(f"C must be > 0, got {self.C}")
 
-    def fit(self, X: Any, y: Any = None) -> PhaseEncoder:
-        """Learn the encoders from descriptors whose rows are frames in route order."""
+    def fit(self, X: Any, y: Any = None, progress: ProgressFn | None = None) -> PhaseEncoder:
+        """Learn the encoders from descriptors whose rows are frames in route order.
+
+        ``progress(detail, done, total)`` follows the classes of every digit
+        (:mod:`service.encoding.progress`)."""
         del y  # the labels are the row order
         X = check_descriptors(X, min_rows=2, what="training descriptors")
         self._validate_params(X.shape[1])
         self.normalizer_ = Normalizer.fit(X) if self.normalize else None
         Xn = self.normalizer_.transform(X) if self.normalizer_ is not None else X
-        return self._fit_normalised(Xn)
+        return self._fit_normalised(Xn, progress)
 
-    def _fit_normalised(self, Xn: np.ndarray) -> PhaseEncoder:
+    def periods_for(self, n_frames: int) -> tuple[int, ...]:
+        """The periods a fit on ``n_frames`` frames uses (its progress counts their sum)."""
+        if self.periods is not None:
+            return validate_periods(self.periods, n_frames)
+        return auto_periods(n_frames, int(self.n_patterns))
+
+    def _fit_normalised(self, Xn: np.ndarray, progress: ProgressFn | None = None) -> PhaseEncoder:
         n, d = Xn.shape
         self._validate_params(d)
-        if self.periods is not None:
-            self.periods_ = validate_periods(self.periods, n)
-        else:
-            self.periods_ = auto_periods(n, int(self.n_patterns))
+        self.periods_ = self.periods_for(n)
         labels = index_to_labels(np.arange(n), self.periods_)
-        self.digits_ = [
-            DigitClassifier.fit(
+        k = len(self.periods_)
+        steps = Steps(progress, [f"digit {j + 1}/{k}" for j in range(k)], self.periods_)
+        self.digits_ = []
+        for j, tau in enumerate(self.periods_):
+            self.digits_.append(DigitClassifier.fit(
                 Xn,
                 labels[:, j],
                 tau,
@@ -117,9 +127,9 @@ class PhaseEncoder(PlaceRecognizer):
                 dtype=self.dtype,
                 random_state=self.random_state,
                 n_jobs=self.n_jobs,
-            )
-            for j, tau in enumerate(self.periods_)
-        ]
+                progress=steps.step(j),
+            ))  # fmt: skip
+            steps.done(j)
         if not self.normalize:
             self.normalizer_ = None
         self._set_fitted(n, d)

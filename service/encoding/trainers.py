@@ -18,6 +18,7 @@ where LIBLINEAR does so, in ``logreg`` and ``svm``):
 
 from __future__ import annotations
 
+import itertools
 import os
 import warnings
 from collections.abc import Callable
@@ -26,6 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from service.encoding.progress import StepFn
 from service.errors import InvalidParameterError
 
 TrainerName = Literal["logreg", "svm", "ridge", "torch"]
@@ -42,11 +44,13 @@ def train_linear(
     C: float = 4.0,
     random_state: int | None = 0,
     n_jobs: int = 1,
+    progress: StepFn | None = None,
 ) -> LinearModel:
     """Fit a one-vs-rest linear classifier; returns ``(W, b)`` in float64.
 
     ``n_jobs`` threads solve the binary problems of ``logreg`` and ``svm`` concurrently
-    (LIBLINEAR releases the GIL); ``-1`` uses every core.
+    (LIBLINEAR releases the GIL); ``-1`` uses every core. ``progress(done, total)`` is
+    called as classes finish (per binary problem, or all at once for ``ridge``/``torch``).
     """
     if trainer not in _TRAINERS:
         raise InvalidParameterError(f"unknown trainer {trainer!r}; choose one of {TRAINERS}")
@@ -59,11 +63,18 @@ def train_linear(
     b = np.full(n_classes, -np.inf, dtype=np.float64)
     if present.size == 1:  # a digit that never changes on this route carries no information
         b[present] = 0.0
+        if progress is not None:
+            progress(1, 1)
         return W, b
     threads = (os.cpu_count() or 1) if n_jobs == -1 else max(1, int(n_jobs))
-    Wp, bp = _TRAINERS[trainer](
-        X, np.searchsorted(present, y), present.size, C, random_state, threads
-    )
+    fit = _TRAINERS[trainer]
+    y_present = np.searchsorted(present, y)
+    if trainer in _PER_CLASS:
+        Wp, bp = fit(X, y_present, present.size, C, random_state, threads, progress)
+    else:
+        Wp, bp = fit(X, y_present, present.size, C, random_state, threads)
+        if progress is not None:
+            progress(present.size, present.size)
     W[present] = Wp
     b[present] = bp
     return W, b
@@ -71,14 +82,19 @@ def train_linear(
 
 def _binary_loop(make: Callable[[], Any]) -> Callable[..., LinearModel]:
     def fit(
-        X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None, threads: int = 1
+        X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None, threads: int = 1,
+        progress: StepFn | None = None,
     ) -> LinearModel:
+        finished = itertools.count(1)  # next() is atomic under the GIL
+
         def one(c: int) -> tuple[np.ndarray, float]:
             est = make()
             est.set_params(C=C, random_state=seed)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # convergence chatter; results stay usable
                 est.fit(X, (y == c).astype(np.int64))
+            if progress is not None:
+                progress(next(finished), n)
             return est.coef_.ravel(), float(np.ravel(est.intercept_)[0])
 
         if threads > 1:
@@ -189,6 +205,7 @@ def _lbfgs_torch(
     )
 
 
+_PER_CLASS = frozenset({"logreg", "svm"})  # one binary problem per class: progress per class
 _TRAINERS: dict[str, Callable[..., LinearModel]] = {
     "logreg": _binary_loop(_make_logreg),
     "svm": _binary_loop(_make_svm),

@@ -56,7 +56,9 @@ def test_chunked_encoder_localizes_a_smooth_route(small_route: SyntheticRoute) -
     progress: list[tuple[str, int, int]] = []
     model = ChunkedPlaceEncoder(n_chunks=4, trainer="ridge", top_chunks=2)
     model.fit(small_route.reference, progress=lambda *a: progress.append(a))
-    assert progress[-1][1] == progress[-1][2] == 5  # classifier + 4 chunks
+    # one unit per class: the chunk classifier's 4, then every chunk encoder's Στ
+    units = 4 + sum(sum(enc.periods_) for enc in model.chunk_encoders_)
+    assert progress[-1][1] == progress[-1][2] == units
     loc = model.localize(small_route.query)
     n = small_route.query.shape[0]
     p5 = float(np.mean(np.abs(loc.index - np.arange(n)) <= 5))
