@@ -18,9 +18,9 @@ from pydantic import BaseModel
 from rich.console import Console
 from rich.progress import (
     BarColumn,
-    MofNCompleteColumn,
     Progress,
     SpinnerColumn,
+    TaskProgressColumn,
     TextColumn,
     TimeElapsedColumn,
 )
@@ -127,31 +127,41 @@ def localize(
 
 
 def _job_line(job: Job) -> str:
-    progress = f" {job.chunks_done}/{job.chunks_total} chunks" if job.chunks_total else ""
-    return f"{job.map}: {job.state} ({job.stage}){progress}"
+    chunks = f", {job.chunks_done}/{job.chunks_total} parts" if job.chunks_total > 1 else ""
+    detail = f" {job.progress.detail}" if job.progress.detail and not job.done else ""
+    return f"{job.map}: {job.state} ({job.stage}{chunks}){detail}"
 
 
 def _wait(gp: GridplaceClient, job: Job, timeout: float) -> Job:
-    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TimeElapsedColumn())  # fmt: skip
+    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+               TaskProgressColumn(), TimeElapsedColumn())  # fmt: skip
     with Progress(*columns, console=console, transient=True) as bar:
-        task = bar.add_task(_job_line(job), total=job.chunks_total or None)
+        task = bar.add_task(_job_line(job), total=1.0, completed=job.progress.fraction)
 
         def update(j: Job) -> None:
-            bar.update(task, description=_job_line(j), completed=j.chunks_done,
-                       total=j.chunks_total or None)  # fmt: skip
+            bar.update(task, description=_job_line(j), completed=j.progress.fraction)
 
         return gp.wait_for_job(job.id, timeout=timeout, on_update=update)
 
 
-def _report_job(job: Job, as_json: bool) -> None:
+def _version_status(gp: GridplaceClient, job: Job) -> str:
+    """Whether the job's version is the one its map serves, and how to make it so."""
+    active = gp.get_map(job.map).active_version
+    if active == job.version:
+        return f"version {job.version} is active (served for map {job.map})"
+    now = f"map {job.map} serves version {active}" if active is not None else f"map {job.map} serves no version"
+    return (f"version {job.version} is NOT active ({now}); activate it with: "
+            f"gridplace client activate {job.map} {job.version}")  # fmt: skip
+
+
+def _report_job(gp: GridplaceClient, job: Job, as_json: bool) -> None:
     if as_json:
         _print_json(job)
+    elif job.version is not None:
+        console.print(f"job {job.id}: {job.map} {job.state} → {_version_status(gp, job)}",
+                      highlight=False, soft_wrap=True)  # fmt: skip
     else:
-        version = f" → version {job.version}" if job.version is not None else ""
-        console.print(
-            f"job {job.id}: {job.map} {job.state} ({job.stage}){version}", highlight=False
-        )
+        console.print(f"job {job.id}: {job.map} {job.state} ({job.stage})", highlight=False)
     if job.state == "failed":
         raise JobFailedError(f"job {job.id} failed: {job.error}", job_id=job.id)
 
@@ -219,7 +229,7 @@ def upload(
                               highlight=False)  # fmt: skip
             return
         job = _wait(gp, job, wait_timeout)
-    _report_job(job, as_json)
+        _report_job(gp, job, as_json)
 
 
 @app.command()
@@ -239,7 +249,7 @@ def jobs(
     timeout: Timeout = 30.0,
     as_json: AsJson = False,
 ) -> None:
-    """Show training jobs (state, stage, chunk progress, retries, version); exit 2 if one of
+    """Show training jobs (state, stage, fit progress, retries, version); exit 2 if one of
     the given jobs failed. Without ids: the newest jobs (--map, --state, --limit)."""
     with _client(url, token, timeout) as gp:
         if not job_ids:
@@ -251,22 +261,13 @@ def jobs(
         _print_json(found)
     else:
         table = Table()
-        for col in (
-            "job",
-            "map",
-            "state",
-            "stage",
-            "chunks",
-            "retries",
-            "version",
-            "created",
-            "finished",
-            "error",
-        ):
+        for col in ("job", "map", "state", "stage", "progress", "retries", "version", "created",
+                    "finished", "error"):  # fmt: skip
             table.add_column(col)
         for j in found:
-            table.add_row(j.id, j.map, j.state, j.stage, f"{j.chunks_done}/{j.chunks_total}",
-                          str(len(j.retries)), str(j.version) if j.version is not None else "-", _when(j.created_at),
+            done = f"{j.progress.fraction:.0%}" + (f" {j.progress.detail}" if not j.done else "")
+            table.add_row(j.id, j.map, j.state, j.stage, done, str(len(j.retries)),
+                          str(j.version) if j.version is not None else "-", _when(j.created_at),
                           _when(j.finished_at), j.error or "")  # fmt: skip
         console.print(table)
     failed = [j.id for j in found if j.state == "failed"]

@@ -21,13 +21,22 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from service.bench.data import NORDLAND_SHAPE, nordland, shared_data_dir
 from service.cli.demo_examples import print_examples
+from service.cli.demo_reading import TOLERANCE, reading, server_check
 from service.cli.errors import cli_errors
-from service.encoding import ExactNN, ModelParams, build_model, load_model, save_model
+from service.cli.fit_progress import fit_title, fit_with_progress
+from service.encoding import (
+    ExactNN,
+    ModelParams,
+    build_model,
+    check_new_artifact_dir,
+    default_trainer,
+    load_model,
+    save_model,
+)
 from service.encoding.base import PlaceRecognizer
 from service.encoding.evaluation import evaluate
 from service.encoding.synthetic import smooth_route
@@ -67,12 +76,7 @@ def _data(frames: int | None, synthetic: bool) -> DemoData:
 
 def _fit(params: ModelParams, X: np.ndarray) -> tuple[PlaceRecognizer, float]:
     model = build_model(params)
-    columns = (SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
-        bar.add_task(f"training {params.trainer} phase encoders on {X.shape[0]} frames", total=None)
-        start = time.perf_counter()
-        model.fit(X)
-    return model, time.perf_counter() - start
+    return model, fit_with_progress(model, X, console, fit_title(model, X.shape[0]))
 
 
 def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any]]:
@@ -83,7 +87,7 @@ def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any
     results = {}
     for name, m in (("gridplace", model), ("exact NN", nn)):
         for cond, Q in (("identical", data.reference), ("cross-season", data.query)):
-            r = evaluate(m, Q, tolerance=5)
+            r = evaluate(m, Q, tolerance=TOLERANCE)
             results[f"{name}/{cond}"] = r
             pa = r["precision_at"]
             table.add_row(name, cond, f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
@@ -140,8 +144,9 @@ def _serve(data_dir: Path, port: int, grpc_port: int, model: PlaceRecognizer, pa
             gp.wait_until_ready(timeout=120)
             probe = data.query[data.probe]
             hit = gp.localize(DEMO_MAP, probe)
-        console.print(f"server check: query frame {data.probe} (cross-season) → frame {hit.index} "
-                      f"(confidence {hit.confidence:.2f}, version {hit.version})", highlight=False)  # fmt: skip
+        check = server_check(data.probe, hit.index, hit.confidence, hit.version,
+                             metrics.get("cross_season_precision_at_5"))  # fmt: skip
+        console.print(check, highlight=False, soft_wrap=True)
         request = data_dir / "demo-localize.json"
         b64 = base64.b64encode(np.ascontiguousarray(probe, dtype="<f4").tobytes()).decode("ascii")
         request.write_text(json.dumps({"map": DEMO_MAP, "descriptor_b64": b64}))
@@ -172,7 +177,9 @@ def demo(
     out: Annotated[Path, typer.Option(help="where the trained artifact is written")] = Path(
         "gridplace-data/demo"
     ),
-    trainer: Annotated[str, typer.Option(help="logreg | svm | ridge | torch")] = "ridge",
+    trainer: Annotated[str | None, typer.Option(
+        help=f"logreg (the paper's) | svm | ridge | torch (default: {default_trainer()})",
+        show_default=False)] = None,
     patterns: Annotated[int, typer.Option("--patterns", "-k")] = 2,
     rho: Annotated[float, typer.Option()] = 0.5,
     frames: Annotated[
@@ -194,20 +201,22 @@ def demo(
     serve the model as map 'demo' and print curl / grpcurl / gridplace client examples."""
     if frames is not None and frames < 2:
         raise InvalidParameterError(f"--frames must be at least 2, got {frames}")
-    params = ModelParams.parse(n_patterns=patterns, rho=rho, trainer=trainer)
+    chosen = {"trainer": trainer} if trainer is not None else {}
+    params = ModelParams.parse(n_patterns=patterns, rho=rho, **chosen)
+    path = check_new_artifact_dir(out / f"phase-{params.trainer}-{time.strftime('%Y%m%d-%H%M%S')}")
     data = _data(frames, synthetic)
     console.print(
         f"[bold]dataset[/]: {data.label}; N={data.reference.shape[0]}, d={data.reference.shape[1]}"
     )
     model, train_s = _fit(params, data.reference)
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    path = out / f"phase-{trainer}-{stamp}"
     save_model(model, path, extra={"train_seconds": train_s, "dataset": data.label})
     model = load_model(path)  # answer from the verified artifact, as the server does
     results = _evaluate(model, data)
     console.print(
-        f"trained in {train_s:.1f}s (periods {list(getattr(model, 'periods_', []))}); artifact: {path}"
+        f"trained with {params.trainer} in {train_s:.1f}s "
+        f"(periods {list(getattr(model, 'periods_', []))}); artifact: {path}"
     )
+    console.print(reading(results, data.reference.shape[0]), highlight=False, soft_wrap=True)
     (path.parent / f"{path.name}.results.json").write_text(
         json.dumps({k: {kk: v for kk, v in r.items() if kk != "footprint"} for k, r in results.items()},
                    indent=2, default=lambda o: o.item() if isinstance(o, np.generic) else str(o))

@@ -15,6 +15,8 @@ from rich.rule import Rule
 import service
 
 GRPC_SERVICE = "gridplace.v1.Localization"
+# the job id out of an upload's JSON answer, with nothing but Python (jq may be missing)
+JSON_ID = """python3 -c 'import json, sys; print(json.load(sys.stdin)["id"])'"""
 PROTOS_DIR = Path(service.__file__).resolve().parent.parent / "protos"
 
 
@@ -100,9 +102,12 @@ def print_examples(
         "# maps and versions (admin)",
         f"curl -s {auth} $GRIDPLACE_URL/v1/maps",
         f"curl -s {auth} $GRIDPLACE_URL/v1/maps/demo/versions",
-        "# upload a route: trains a new map in the background; then follow its job",
-        f"curl -s {auth} -F file=@{_q(queries)} -F trainer=ridge $GRIDPLACE_URL/v1/maps/demo-small/routes",
-        f"curl -s {auth} $GRIDPLACE_URL/v1/jobs/<job_id from the answer>",
+        "# upload a route: trains a new map in the background (202 + the job); then follow the job",
+        (
+            f"JOB_ID=$(curl -s {auth} -F file=@{_q(queries)} -F trainer=ridge "
+            f"$GRIDPLACE_URL/v1/maps/demo-small/routes | {JSON_ID}) && echo $JOB_ID"
+        ),
+        f"curl -s {auth} $GRIDPLACE_URL/v1/jobs/$JOB_ID",
         "",
         "# the same with the Python client's CLI (reads GRIDPLACE_URL / GRIDPLACE_ADMIN_TOKEN)",
         "gridplace client status",

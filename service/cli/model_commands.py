@@ -3,18 +3,24 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Annotated
 
 import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from service.cli.errors import cli_errors
-from service.encoding import ModelParams, build_model, load_model, load_npy, save_model
-from service.encoding.chunked import ChunkedPlaceEncoder
+from service.cli.fit_progress import fit_title, fit_with_progress
+from service.encoding import (
+    ModelParams,
+    build_model,
+    check_new_artifact_dir,
+    default_trainer,
+    load_model,
+    load_npy,
+    save_model,
+)
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
 from service.encoding.validation import check_descriptors
@@ -25,12 +31,14 @@ console = Console()
 @cli_errors
 def train(
     reference: Annotated[Path, typer.Argument(help=".npy descriptors, rows in route order")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory (must not exist)")],
     patterns: Annotated[int, typer.Option("--patterns", "-k", help="number of encoders k")] = 2,
     periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
     rho: Annotated[float, typer.Option(help="fraction of columns per encoder")] = 0.5,
     gamma: Annotated[float | None, typer.Option(help="L1 bound (default sqrt(d'))")] = None,
-    trainer: Annotated[str, typer.Option(help="logreg | svm | ridge | torch")] = "logreg",
+    trainer: Annotated[str | None, typer.Option(
+        help=f"logreg (the paper's) | svm | ridge | torch (default: {default_trainer()})",
+        show_default=False)] = None,
     c: Annotated[float, typer.Option("--C", help="inverse regularisation")] = 4.0,
     decode: Annotated[str, typer.Option(help="joint | argmax")] = "joint",
     dtype: Annotated[str, typer.Option(help="float64 | float32 | float16 | int8")] = "float32",
@@ -40,22 +48,16 @@ def train(
     n_jobs: Annotated[int, typer.Option(help="chunk processes, or one-vs-rest threads without chunks (-1 = all)")] = 1,
 ) -> None:
     """Train a model on a route and save it as a new artifact."""
+    chosen = {"trainer": trainer} if trainer is not None else {}
     params = ModelParams.parse(
         n_patterns=patterns, periods=parse_periods(periods, "--periods"), rho=rho, gamma=gamma,
-        trainer=trainer, C=c, decode=decode, dtype=dtype, n_chunks=chunks, chunk_rho=chunk_rho,
-        top_chunks=top_chunks, n_jobs=n_jobs,
+        C=c, decode=decode, dtype=dtype, n_chunks=chunks, chunk_rho=chunk_rho,
+        top_chunks=top_chunks, n_jobs=n_jobs, **chosen,
     )  # fmt: skip
+    check_new_artifact_dir(out)  # before minutes of training, not after
     X = check_descriptors(load_npy(reference), min_rows=2, what=str(reference))
     model = build_model(params)
-    start = time.perf_counter()
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:  # fmt: skip
-        task = bar.add_task(f"training {model.kind} on {X.shape[0]} frames", total=None)
-        if isinstance(model, ChunkedPlaceEncoder):
-            model.fit(X, progress=lambda stage, done, total: bar.update(task, completed=done, total=total))
-        else:
-            model.fit(X)
-    seconds = time.perf_counter() - start
+    seconds = fit_with_progress(model, X, console, fit_title(model, X.shape[0]))
     manifest = save_model(model, out, extra={"train_seconds": seconds, "source": str(reference)})
     fp = manifest["footprint"]
     console.print(

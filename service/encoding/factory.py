@@ -13,7 +13,6 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from service.encoding.base import PlaceRecognizer
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
 from service.errors import InvalidParameterError
@@ -74,7 +73,7 @@ class ModelParams(BaseModel):
             raise InvalidParameterError(f"invalid training parameters: {msgs}") from exc
 
 
-def build_model(params: ModelParams) -> PlaceRecognizer:
+def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
     """An unfitted estimator for ``params``."""
     common: dict[str, Any] = dict(
         n_patterns=params.n_patterns,

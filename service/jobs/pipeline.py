@@ -41,6 +41,7 @@ from service.jobs.workspace import JobFinished, Prep, Workspace
 from service.registry import JobSpec, Registry
 
 EVAL_ROWS = 2000  # training-set precision is measured on at most this many frames
+PROGRESS_INTERVAL_S = 0.5  # a part writes its fit progress to the registry at most this often
 _BLOCK = 8192
 
 
@@ -122,6 +123,31 @@ def _still_open(registry: Registry, job_id: str, what: str) -> None:
         raise JobFinished(f"job {job_id} finished while {what} trained; result discarded")
 
 
+class FitReporter:
+    """The fit progress of one part of a job (``fit``, ``chunk_3``, ``chunk_classifier``),
+    written to the registry at most every :data:`PROGRESS_INTERVAL_S` and always at the end.
+
+    When the job has ended meanwhile (failed elsewhere, timed out), the write raises
+    :class:`JobFinished`, which aborts the fit instead of training for nothing.
+    """
+
+    def __init__(self, registry: Registry, job_id: str, part: str) -> None:
+        self._registry = registry
+        self._job_id = job_id
+        self._part = part
+        self._last = float("-inf")
+
+    def __call__(self, detail: str, done: int, total: int) -> None:
+        now = time.monotonic()
+        if done < total and now - self._last < PROGRESS_INTERVAL_S:
+            return
+        self._last = now
+        if self._part != "fit":  # a chunked job's parts run side by side: say which one
+            detail = f"{self._part}: {detail}" if detail else self._part
+        if not self._registry.record_fit_progress(self._job_id, self._part, done, total, detail):
+            raise JobFinished(f"job {self._job_id} already finished; stopping {self._part}")
+
+
 def _validate(params: ModelParams, n_features: int, sizes: list[int]) -> None:
     """Fail before any training for parameters that cannot fit this route."""
     encoder = cast(PhaseEncoder, build_model(params.model_copy(update={"n_chunks": 1})))
@@ -139,7 +165,9 @@ def train_single(data_dir: Path, job_id: str) -> int:
     X = open_route(registry.route_path(spec))
     _check_finite(X)
     _validate(params, X.shape[1], [X.shape[0]])
-    model = build_model(params).fit(_rows(X, 0, X.shape[0]))
+    model = build_model(params).fit(
+        _rows(X, 0, X.shape[0]), progress=FitReporter(registry, job_id, "fit")
+    )
     fit_s = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s}, part="train")
     version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s})
@@ -174,7 +202,8 @@ def train_chunk(data_dir: Path, job_id: str, chunk: int) -> float:
     if not workspace.has_chunk(chunk):  # else an earlier run finished it, unrecorded
         s, e = int(prep.bounds[chunk]), int(prep.bounds[chunk + 1])
         X = open_route(registry.route_path(spec))
-        encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump())
+        encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump(),
+                                    FitReporter(registry, job_id, f"chunk_{chunk}"))  # fmt: skip
         _still_open(registry, job_id, f"chunk {chunk}")
         workspace.save_chunk(chunk, encoder)
     seconds = time.perf_counter() - start
@@ -191,7 +220,8 @@ def train_classifier(data_dir: Path, job_id: str) -> float:
     workspace = Workspace(data_dir, job_id)
     prep = workspace.load_prep()
     X = open_route(registry.route_path(spec))
-    classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump())
+    classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump(),
+                                      FitReporter(registry, job_id, "chunk_classifier"))  # fmt: skip
     _still_open(registry, job_id, "the chunk classifier")
     workspace.save_classifier(classifier, X.shape[1])
     seconds = time.perf_counter() - start

@@ -22,6 +22,7 @@ from service.errors import InvalidInputError, NotFoundError
 from service.registry.db import Database, dumps, from_text, loads, to_text, ts, utcnow
 from service.registry.models import JobInfo, JobSpec, RouteSource
 from service.registry.names import check_map_name
+from service.wire import JobProgress, PartProgress
 
 MAX_IDEMPOTENCY_KEY = 200
 MAX_RETRIES_KEPT = 200
@@ -71,7 +72,19 @@ def _job_from_row(row: RowMapping) -> JobInfo:
         timings=loads(row["timings"]) or {},
         content_sha256=row["content_sha256"],
         retries=loads(row["retries"]) or [],
-    )
+        progress=_progress(loads(row["progress"]), row["chunks_total"],
+                           row["state"] == "succeeded"),
+    )  # fmt: skip
+
+
+def _progress(stored: dict[str, Any] | None, n_parts: int, succeeded: bool) -> JobProgress:
+    """The job's fit progress from what its parts recorded: the mean of every part's
+    done/total over the job's ``n_parts`` parts (those not started count 0); 1 on success."""
+    stored = stored or {}
+    parts = {k: PartProgress(**v) for k, v in (stored.get("parts") or {}).items()}
+    shares = sum(min(1.0, p.done / p.total) if p.total > 0 else 1.0 for p in parts.values())
+    fraction = 1.0 if succeeded else shares / max(n_parts, len(parts), 1)
+    return JobProgress(fraction=fraction, detail=stored.get("detail", ""), parts=parts)
 
 
 class JobTable:
@@ -277,6 +290,25 @@ class JobTable:
             conn.execute(
                 text("UPDATE jobs SET retries = :r WHERE id = :j"),
                 {"r": dumps(retries[-MAX_RETRIES_KEPT:]), "j": job_id},
+            )
+        return True
+
+    def record_fit_progress(
+        self, job_id: str, part: str, done: int, total: int, detail: str = ""
+    ) -> bool:
+        """Record how far ``part`` of the job's fit got; False if the job finished."""
+        with self.db.transaction() as conn:
+            row = _open_job(conn, job_id)
+            if row is None:
+                return False
+            progress = loads(row["progress"]) or {}
+            progress.setdefault("parts", {})[part] = {
+                "done": int(done), "total": int(total), "detail": detail,
+            }  # fmt: skip
+            progress["detail"] = detail
+            conn.execute(
+                text("UPDATE jobs SET progress = :p WHERE id = :j"),
+                {"p": dumps(progress), "j": job_id},
             )
         return True
 

@@ -83,9 +83,15 @@ _V2 = (
     "CREATE INDEX IF NOT EXISTS jobs_by_created ON jobs (created_at, id)",
 )
 
+_V3 = (
+    # how far each part of a job's fit got (see JobTable.record_fit_progress)
+    "ALTER TABLE jobs ADD COLUMN progress TEXT NOT NULL DEFAULT '{}'",
+)
+
 MIGRATIONS: Sequence[tuple[int, str, Sequence[str]]] = (
     (1, "maps, versions, jobs and the generation counter", _V1),
     (2, "upload content hashes, version metadata, job parts and retries", _V2),
+    (3, "fit progress of a job's parts", _V3),
 )
 SCHEMA_VERSION = MIGRATIONS[-1][0]
 

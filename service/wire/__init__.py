@@ -32,7 +32,7 @@ from service.wire.base import (
 )
 from service.wire.errors import ErrorBody
 from service.wire.health import Health, Readiness
-from service.wire.jobs import Job, JobPage, JobRetry
+from service.wire.jobs import Job, JobPage, JobProgress, JobRetry, PartProgress
 from service.wire.localize import (
     BatchLocalization,
     BatchLocalizeRequest,
@@ -54,6 +54,7 @@ __all__ = [
     "Health",
     "Job",
     "JobPage",
+    "JobProgress",
     "JobRetry",
     "JobState",
     "Localization",
@@ -61,6 +62,7 @@ __all__ = [
     "MapDetail",
     "MapName",
     "MapSummary",
+    "PartProgress",
     "Readiness",
     "Request",
     "TrainingOptions",

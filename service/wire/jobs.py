@@ -18,6 +18,27 @@ class JobRetry(Answer):
     at: datetime
 
 
+class PartProgress(Answer):
+    """How far one part of a job (``fit``, ``chunk_3``, ``chunk_classifier``) got."""
+
+    done: int = Field(description="units of work finished (one unit: one class of a digit)")
+    total: int = Field(description="units of work of this part")
+    detail: str = Field("", description="the step last reported")
+
+
+class JobProgress(Answer):
+    """Progress of a job's fit, as its training processes report it."""
+
+    fraction: float = Field(
+        0.0, ge=0.0, le=1.0,
+        description="share of the fit done: each part's done/total, averaged over all parts "
+        "of the job (fit, or chunk_<c> and chunk_classifier; parts not started count 0); "
+        "1 once the job succeeded",
+    )
+    detail: str = Field("", description="the step last reported, e.g. 'digit 2/2: 17/60 classes'")
+    parts: dict[str, PartProgress] = Field(default_factory=dict)
+
+
 class Job(Answer):
     """A training job's externally visible state."""
 
@@ -42,6 +63,7 @@ class Job(Answer):
         False, description="answered for a repeated upload (the same route, parameters and "
         "extractor as an earlier one): nothing new was queued",
     )
+    progress: JobProgress = Field(default_factory=JobProgress, description="the fit's progress")
 
     @computed_field  # type: ignore[prop-decorator]
     @property

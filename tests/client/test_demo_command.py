@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -28,6 +29,8 @@ def test_no_serve_prints_the_table_and_exits(tmp_path: Path) -> None:
                          check=False, capture_output=True, text=True, timeout=120, env=ENV)  # fmt: skip
     assert out.returncode == 0, out.stdout + out.stderr
     assert "SYNTHETIC" in out.stdout and "cross-season" in out.stdout and "exact NN" in out.stdout
+    # the numbers come with a reading and a pointer to the measured results
+    assert "a random guess gets" in out.stdout and "docs/RESULTS.md" in out.stdout
     (results,) = tmp_path.glob("*.results.json")
     assert set(json.loads(results.read_text())) >= {"gridplace/identical", "exact NN/cross-season"}
     assert "curl" not in out.stdout and not (tmp_path / "registry.sqlite3").exists()
@@ -71,6 +74,8 @@ def test_serve_publishes_the_map_and_its_examples_work(tmp_path: Path) -> None:
     )
     try:
         lines = _read_until(proc, "Ctrl-C stops the server", 120)
+        (check,) = [ln for ln in lines if ln.startswith("server check:")]
+        assert re.search(r"→ frame \d+, (correct|wrong by \d+ frames)", check), check
         exports = {ln.split("=", 1)[0][len("export "):]: ln.split("=", 1)[1]
                    for ln in lines if ln.startswith("export ")}  # fmt: skip
         assert exports["GRIDPLACE_URL"] == f"http://127.0.0.1:{port}"
@@ -80,14 +85,22 @@ def test_serve_publishes_the_map_and_its_examples_work(tmp_path: Path) -> None:
             assert gp.get_map("demo").serving_version == 1
             (version,) = gp.list_versions("demo")
             assert version.n_frames == 300 and "SYNTHETIC" in version.metrics["dataset"]
+        commands = [ln for ln in lines if ln.startswith(("curl", "JOB_ID="))]
+        assert not [ln for ln in commands if "<" in ln]  # no placeholder that breaks a paste
         if shutil.which("curl"):
             shell_env = {**env, **exports}
-            for line in (ln for ln in lines if ln.startswith("curl") and "<job_id" not in ln):
+            for line in commands:
                 run = subprocess.run(["bash", "-c", line], check=False, capture_output=True, text=True,
                                      env=shell_env, timeout=30)  # fmt: skip
+                if line.startswith("JOB_ID="):  # the upload: its job id for the next lines
+                    assert run.returncode == 0 and re.fullmatch(r"[0-9a-f]{32}\n", run.stdout), run
+                    shell_env["JOB_ID"] = run.stdout.strip()
+                    continue
                 body = json.loads(run.stdout)
                 failed = isinstance(body, dict) and isinstance(body.get("error"), str)
                 assert run.returncode == 0 and not failed, (line, body)
+                if "/v1/jobs/" in line:
+                    assert body["id"] == shell_env["JOB_ID"] and "progress" in body
         assert any("grpc" in ln.lower() for ln in lines)
         proc.send_signal(signal.SIGINT)  # Ctrl-C
         assert proc.wait(timeout=30) == 0

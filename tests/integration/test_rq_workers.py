@@ -40,6 +40,9 @@ def test_chunks_train_in_parallel_on_several_workers(data_dir, redis_url, worker
     done = _wait(backend, job.id)
     assert done.state == "succeeded", done.error
     assert (done.chunks_done, done.chunks_total, done.version) == (5, 5, 1)
+    # each part's fit progress was written by the worker that ran it
+    assert set(done.progress.parts) == {"chunk_0", "chunk_1", "chunk_2", "chunk_3", "chunk_classifier"}
+    assert all(p.done == p.total > 0 for p in done.progress.parts.values())
     info = registry.get_version("city", 1)
     assert info.active and info.kind == "chunked_encoder" and info.metrics["backend"] == "rq"
     # every part ran as its own RQ job; the chunk parts were spread over both workers

@@ -1,0 +1,90 @@
+"""What the demo's numbers mean, in a few printed lines beside its table.
+
+Each reading is a function of the demo's results (``"<model>/<condition>"`` → the output of
+:func:`service.encoding.evaluation.evaluate`) returning one line, or ``None`` when it has
+nothing to say; :data:`READINGS` lists them in print order, so another comparison (a sequence
+filter, another default) is one more function in that list.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+RESULTS_DOC = "docs/RESULTS.md"
+TOLERANCE = 5  # frames: the "P@5" column and the server check's "correct"
+
+Results = dict[str, dict[str, Any]]
+Reading = Callable[[Results, int], str | None]
+
+
+def chance(n_frames: int, tolerance: int = TOLERANCE) -> float:
+    """Precision of a uniformly random answer within ``tolerance`` frames (away from the
+    route's ends)."""
+    return min(1.0, (2 * tolerance + 1) / max(1, n_frames))
+
+
+def _p(results: Results, key: str) -> float:
+    return float(results[key]["precision_at"][str(TOLERANCE)])
+
+
+def _cross_season(results: Results, n_frames: int) -> str | None:
+    if "gridplace/cross-season" not in results or "exact NN/cross-season" not in results:
+        return None
+    ours, nn = _p(results, "gridplace/cross-season"), _p(results, "exact NN/cross-season")
+    verdict = "better than" if ours > nn else "below"
+    return (
+        f"cross-season (winter queries on the summer route, the real task): gridplace finds "
+        f"{ours:.1%} of the frames within ±{TOLERANCE}, {verdict} exact NN's {nn:.1%}; a random "
+        f"guess gets {chance(n_frames):.1%}."
+    )
+
+
+def _identical(results: Results, n_frames: int) -> str | None:
+    del n_frames
+    if "gridplace/identical" not in results:
+        return None
+    return (
+        f"identical (the training frames themselves, an upper bound): {_p(results, 'gridplace/identical'):.1%}"
+        f" within ±{TOLERANCE}; the gap to cross-season is how poorly summer-trained encoders "
+        "generalise to winter."
+    )
+
+
+def _storage(results: Results, n_frames: int) -> str | None:
+    del n_frames
+    if "gridplace/identical" not in results or "exact NN/identical" not in results:
+        return None
+    ours = results["gridplace/identical"]["footprint_bytes"]
+    nn = results["exact NN/identical"]["footprint_bytes"]
+    return f"storage: {ours:,} B against exact NN's {nn:,} B ({nn / max(1, ours):.1f}× less)."
+
+
+READINGS: list[Reading] = [_cross_season, _identical, _storage]
+
+
+def reading(results: Results, n_frames: int) -> str:
+    """The demo's comment on its results, ending with where the full measurements are."""
+    lines = [line for read in READINGS if (line := read(results, n_frames)) is not None]
+    lines.append(
+        f"Measured results on the whole Nordland route, other settings and the baselines: {RESULTS_DOC}"
+    )
+    return "\n".join(f"• {line}" for line in lines)
+
+
+def server_check(probe: int, index: int, confidence: float, version: int,
+                 cross_season: float | None = None) -> str:  # fmt: skip
+    """The live server's answer for one winter frame, with whether it is right
+    (``cross_season``: the precision at ±TOLERANCE of all winter queries, for context)."""
+    off = abs(int(index) - int(probe))
+    if off <= TOLERANCE:
+        verdict = f"correct (within ±{TOLERANCE})"
+    else:
+        verdict = f"wrong by {off} frames"
+        if cross_season is not None:
+            verdict += f" (only {cross_season:.1%} of winter frames are found within ±{TOLERANCE})"
+    return (
+        f"server check: winter frame {probe} → frame {index}, {verdict}; confidence "
+        f"{confidence:.2f} (the joint probability of the decoded digits: low values mark "
+        f"answers not to trust), version {version}"
+    )

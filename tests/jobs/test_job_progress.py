@@ -1,0 +1,48 @@
+"""A training job's progress field follows the fit in the embedded process pool, per class
+while it runs and per part once it is done. Routes are SYNTHETIC (smooth random process)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.encoding import ModelParams
+from service.encoding.synthetic import smooth_route
+
+
+def test_a_running_job_reports_per_class_progress(backend, route_file: Path, wait_done):
+    # one digit of 400 classes with logreg: 400 one-vs-rest problems, a couple of seconds
+    route = route_file.with_name("progress-route.npy")
+    np.save(route, smooth_route(400, 32, seed=9).reference, allow_pickle=False)
+    params = ModelParams.parse(trainer="logreg", n_patterns=1)
+    job = backend.submit("progress", route, params, None, None)
+    seen: list[tuple[float, str]] = []
+    deadline = time.monotonic() + 120
+    while not (current := backend.get_job(job.id)).done and time.monotonic() < deadline:
+        if current.state == "running":
+            seen.append((current.progress.fraction, current.progress.detail))
+        time.sleep(0.05)
+    done = wait_done(backend, job.id)
+    assert done.state == "succeeded", done.error
+    midway = [(f, d) for f, d in seen if 0.0 < f < 1.0]
+    assert midway, f"no progress seen while the job ran: {seen[-5:]}"
+    assert all(d.startswith("digit 1/1: ") and d.endswith("/400 classes") for _, d in midway)
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions)
+    assert done.progress.fraction == 1.0
+    fit = done.progress.parts["fit"]
+    assert fit.done == fit.total == 400 and fit.detail == "digit 1/1: 400/400 classes"
+
+
+def test_a_chunked_job_records_every_part(backend, route_file, wait_done):
+    params = ModelParams.parse(trainer="ridge", n_chunks=3)
+    done = wait_done(backend, backend.submit("progress-chunked", route_file, params, None, None).id)
+    assert done.state == "succeeded", done.error
+    parts = done.progress.parts
+    assert set(parts) == {"chunk_0", "chunk_1", "chunk_2", "chunk_classifier"}
+    assert all(p.done == p.total > 0 for p in parts.values())
+    assert parts["chunk_classifier"].total == 3  # one unit per chunk
+    assert parts["chunk_1"].detail.startswith("chunk_1: digit ")
+    assert done.progress.fraction == 1.0
