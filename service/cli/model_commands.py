@@ -61,7 +61,8 @@ def train(
     manifest = save_model(model, out, extra={"train_seconds": seconds, "source": str(reference)})
     fp = manifest["footprint"]
     console.print(
-        f"saved {out}: N={model.n_frames_} d={model.n_features_in_} "
+        f"saved {out}: {model.kind} trainer={params.trainer} "
+        f"N={model.n_frames_} d={model.n_features_in_} "
         f"paper={fp['paper_bytes']:.0f} B actual={fp['actual_bytes']} B in {seconds:.1f}s"
     )
 

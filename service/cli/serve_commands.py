@@ -14,12 +14,13 @@ from service.settings import Settings
 
 
 def _settings_help() -> str:
-    lines = ["Every setting is an environment variable (flags override them):", ""]
+    """One paragraph, one line per setting (the help keeps a paragraph's line breaks)."""
+    lines = ["Every setting is an environment variable (flags override them):"]
     for name, field in Settings.model_fields.items():
         default = field.default
         shown = "unset" if default is None else default
         lines.append(f"GRIDPLACE_{name.upper()}: {field.description} (default {shown})")
-    return "\n\n".join(lines)
+    return "\n".join(lines)
 
 
 @cli_errors

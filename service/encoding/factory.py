@@ -18,6 +18,7 @@ from service.encoding.encoder import PhaseEncoder
 from service.errors import InvalidParameterError
 
 Period = Annotated[int, Field(ge=2, le=2**31 - 1)]
+
 PAPER_TRAINER = "logreg"  # LIBLINEAR L2 logistic regression, C = 4, as in the paper's code
 
 

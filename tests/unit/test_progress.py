@@ -50,7 +50,7 @@ def test_logreg_reports_every_class_of_every_digit(X: np.ndarray) -> None:
     per_class = [s for s in seen if s[0].endswith("classes")]
     assert len(per_class) == total  # one report per one-vs-rest problem
     tau1 = model.periods_[0]
-    assert ("digit 1/2: 3/%d classes" % tau1, 3, total) in seen
+    assert (f"digit 1/2: 3/{tau1} classes", 3, total) in seen
     assert seen[-1][0] == f"digit 2/2: {model.periods_[1]}/{model.periods_[1]} classes"
 
 
