@@ -2,7 +2,7 @@
 
 A *companion* is started after the model store and stopped before it, and is handed the
 same :class:`~service.core.context.ServiceContext` (model store + service layer) as REST.
-The gRPC server of issue #4 plugs in by providing ``service/grpc/server.py`` with::
+The gRPC server plugs in this way: ``service/grpc/server.py`` provides::
 
     def make_companion(settings: Settings) -> Companion | None: ...
 

@@ -1,6 +1,6 @@
 """Training benchmark: every trainer on the same data in one run, so ratios hold.
 
-Two datasets: the issue's shape (N=10,000, d=4096) as a SYNTHETIC smooth route (no real route
+Two datasets: a large route (N=10,000, d=4096) as a SYNTHETIC smooth route (no real route
 of that size and width exists here), and the real Nordland route (summer reference, winter
 query, 3,576 × 2,048) with identical and cross-season queries.
 """

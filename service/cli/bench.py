@@ -79,6 +79,6 @@ def bench_grpc(
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out)
 
 
-from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments, issue #6)
+from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments)
 
 app.command("paper")(bench_paper)

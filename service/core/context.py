@@ -1,8 +1,8 @@
 """Everything one server process holds, built once and shared by every transport.
 
-REST (``service.api``) and gRPC (issue #4) both receive the same :class:`ServiceContext`:
-one registry handle, one training backend, one model store, one service layer, one metrics
-registry.
+REST (``service.api``) and gRPC (``service.grpc``) both receive the same
+:class:`ServiceContext`: one registry handle, one training backend, one model store, one
+service layer, one metrics registry.
 """
 
 from __future__ import annotations

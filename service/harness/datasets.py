@@ -1,6 +1,6 @@
 """Evaluation datasets: two traversals of one route, from a folder or generated (SYNTHETIC).
 
-Folder layout (the issue's format)::
+Folder layout (what ``gridplace bench paper`` reads)::
 
     DIR/
       reference/ | reference.npy     first traversal (the route the model is trained on)

@@ -42,7 +42,7 @@ def test_admin_disabled_without_token_unless_insecure_dev(tmp_path, registry, ba
 def test_upload_train_list_activate_delete(client: TestClient, auth, route, registry) -> None:
     r = _upload(client, auth, "m", npy_bytes(route[0]))
     assert r.status_code == 202 and r.headers["location"] == f"/v1/jobs/{r.json()['id']}"
-    assert r.json()["job_id"] == r.json()["id"]  # the documented name
+    assert r.json()["job_id"] == r.json()["id"]  # the name the README documents
     job = client.get(f"/v1/jobs/{r.json()['id']}", headers=auth).json()
     assert job["state"] == "succeeded" and job["version"] == 1
     assert _upload(client, auth, "m", npy_bytes(route[0][::-1].copy())).status_code == 202

@@ -1,4 +1,4 @@
-"""The hook through which gRPC (issue #4) will run beside REST over the same service layer."""
+"""The companion hook through which gRPC runs beside REST over the same service layer."""
 
 from __future__ import annotations
 
