@@ -18,6 +18,13 @@ from collections.abc import Callable, Sequence
 ProgressFn = Callable[[str, int, int], None]
 #: step(done, total) inside one step of a fit (e.g. the classes of one digit)
 StepFn = Callable[[int, int], None]
+CLASSES = " classes"  # how every per-class detail ends ("digit 1/2: 17/60 classes")
+
+
+def is_per_class(detail: str) -> bool:
+    """True for a report inside a step, False for a step starting or ending: a consumer
+    that throttles reports can drop the former but should keep the latter."""
+    return detail.endswith(CLASSES)
 
 
 class Steps:
@@ -59,7 +66,7 @@ class Steps:
         self._report(label, self._offsets[i])
 
         def report(done: int, total: int) -> None:
-            classes = f"{done}/{total} classes"
+            classes = f"{done}/{total}{CLASSES}"
             self._report(f"{label}: {classes}" if label else classes, self._at(i, done, total))
 
         return report

@@ -30,6 +30,7 @@ from service.encoding.chunked import (
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.normalization import Normalizer
 from service.encoding.phases import validate_periods
+from service.encoding.progress import is_per_class
 from service.errors import (
     DimensionMismatchError,
     EmptyInputError,
@@ -125,7 +126,8 @@ def _still_open(registry: Registry, job_id: str, what: str) -> None:
 
 class FitReporter:
     """The fit progress of one part of a job (``fit``, ``chunk_3``, ``chunk_classifier``),
-    written to the registry at most every :data:`PROGRESS_INTERVAL_S` and always at the end.
+    written to the registry: per-class reports at most every :data:`PROGRESS_INTERVAL_S`,
+    every step boundary (a digit or chunk starting or ending) and the end always.
 
     When the job has ended meanwhile (failed elsewhere, timed out), the write raises
     :class:`JobFinished`, which aborts the fit instead of training for nothing.
@@ -139,7 +141,7 @@ class FitReporter:
 
     def __call__(self, detail: str, done: int, total: int) -> None:
         now = time.monotonic()
-        if done < total and now - self._last < PROGRESS_INTERVAL_S:
+        if done < total and is_per_class(detail) and now - self._last < PROGRESS_INTERVAL_S:
             return
         self._last = now
         if self._part != "fit":  # a chunked job's parts run side by side: say which one

@@ -7,9 +7,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from service.encoding import ModelParams
 from service.encoding.synthetic import smooth_route
+from service.jobs.pipeline import PROGRESS_INTERVAL_S, FitReporter, JobFinished
 
 
 def test_a_running_job_reports_per_class_progress(backend, route_file: Path, wait_done):
@@ -46,3 +48,40 @@ def test_a_chunked_job_records_every_part(backend, route_file, wait_done):
     assert parts["chunk_classifier"].total == 3  # one unit per chunk
     assert parts["chunk_1"].detail.startswith("chunk_1: digit ")
     assert done.progress.fraction == 1.0
+
+
+class _Table:
+    """Stands in for the registry's job table: records writes; ``open`` False = job ended."""
+
+    def __init__(self) -> None:
+        self.writes: list[tuple[str, int, int, str]] = []
+        self.open = True
+
+    def record_fit_progress(self, job_id: str, part: str, done: int, total: int,
+                            detail: str) -> bool:  # fmt: skip
+        self.writes.append((part, done, total, detail))
+        return self.open
+
+
+def test_reporter_throttles_classes_but_keeps_step_boundaries_and_the_end() -> None:
+    table = _Table()
+    report = FitReporter(table, "j", "fit")  # type: ignore[arg-type]
+    report("digit 1/2", 0, 120)
+    for c in range(1, 61):
+        report(f"digit 1/2: {c}/60 classes", c, 120)  # within 0.5 s of the last write
+    report("digit 2/2", 60, 120)  # a new digit is always written
+    report("digit 2/2: 60/60 classes", 120, 120)  # so is the end
+    assert [w[3] for w in table.writes] == ["digit 1/2", "digit 2/2", "digit 2/2: 60/60 classes"]
+    time.sleep(PROGRESS_INTERVAL_S)
+    report("digit 2/2: 1/60 classes", 61, 120)  # the interval passed: written
+    assert table.writes[-1][3] == "digit 2/2: 1/60 classes"
+    chunk = FitReporter(table, "j", "chunk_2")  # type: ignore[arg-type]
+    chunk("digit 1/2", 0, 10)
+    assert table.writes[-1] == ("chunk_2", 0, 10, "chunk_2: digit 1/2")  # parts say which
+
+
+def test_reporter_stops_the_fit_when_the_job_ended() -> None:
+    table = _Table()
+    table.open = False
+    with pytest.raises(JobFinished):
+        FitReporter(table, "j", "fit")("digit 1/2", 0, 10)  # type: ignore[arg-type]
