@@ -67,10 +67,10 @@ def test_train_into_an_unwritable_place_fails_before_training(
 def test_train_defaults_to_the_default_trainer(
     ref: Path, tmp_path: Path
 ) -> None:
-    res = gridplace("train", ref, "--out", tmp_path / "default")
-    assert res.returncode == 0, res.stderr
+    r = runner.invoke(app, ["train", str(ref), "--out", str(tmp_path / "default")])
+    assert r.exit_code == 0, r.output
     assert read_manifest(tmp_path / "default")["params"]["trainer"] == default_trainer()
-    assert f"trainer={default_trainer()}" in res.stdout
+    assert f"trainer={default_trainer()}" in r.output
     help_text = runner.invoke(app, ["train", "--help"], terminal_width=200).output
     assert f"(default: {default_trainer()})" in help_text
 
