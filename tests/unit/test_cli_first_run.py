@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from service.cli import app
-from service.cli import model_commands
+from service.cli import app, model_commands
 from service.encoding import default_trainer, read_manifest
 from service.encoding.synthetic import smooth_route
 from service.settings import Settings
