@@ -6,13 +6,22 @@ import json
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
+from pydantic import ValidationError
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from service.cli.errors import cli_errors
-from service.imaging import extract_paths, list_images, make_extractor, parse_extractor_config
+from service.errors import InvalidParameterError
+from service.imaging import (
+    DEFAULT_EXTRACTOR,
+    PRESETS,
+    extract_folder,
+    list_images,
+    make_extractor,
+    parse_extractor_config,
+)
+from service.imaging.settings import ImagingSettings
 
 console = Console()
 
@@ -21,35 +30,56 @@ console = Console()
 def extract(
     images_dir: Annotated[Path, typer.Argument(help="folder of images (frames in file-name order)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output .npy (float32, N×d)")],
-    extractor: Annotated[str, typer.Option(help="patchnorm | hog | cnn")] = "patchnorm",
-    width: Annotated[int | None, typer.Option(help="resize width (patchnorm/hog default 64)")] = None,
-    height: Annotated[int | None, typer.Option(help="resize height (default 32)")] = None,
+    extractor: Annotated[
+        str | None, typer.Option(help=f"patchnorm | hog | cnn (default {DEFAULT_EXTRACTOR['kind']})")
+    ] = None,
+    preset: Annotated[
+        str | None, typer.Option(help=f"cnn preset: {' | '.join(PRESETS)}")
+    ] = None,
+    width: Annotated[int | None, typer.Option(help="resize width (patchnorm/hog 64; cnn: input)")] = None,
+    height: Annotated[int | None, typer.Option(help="resize height (patchnorm/hog 32)")] = None,
     patch: Annotated[int | None, typer.Option(help="patchnorm patch side (default 16)")] = None,
-    weights: Annotated[Path | None, typer.Option(help="cnn: local torchvision weights file")] = None,
-    arch: Annotated[str | None, typer.Option(help="cnn: resnet18 | resnet34 | resnet50 | …")] = None,
+    batch_size: Annotated[
+        int | None, typer.Option(min=1, max=4096, help="images per forward pass (cnn; default 32)")
+    ] = None,
+    device: Annotated[str | None, typer.Option(help="cnn: auto | cpu | cuda")] = None,
+    threads: Annotated[
+        int | None, typer.Option(min=0, max=256, help="cnn: CPU threads (default 1; 0 = all cores)")
+    ] = None,
+    restart: Annotated[
+        bool, typer.Option(help="ignore a partial extraction left by an interrupted run")
+    ] = False,
 ) -> None:
-    """Extract descriptors exactly as the server does for image uploads and image queries;
-    the extractor config is written beside the output as ``<out>.extractor.json``."""
-    raw: dict[str, Any] = {"kind": extractor}
-    for key, value in dict(width=width, height=height, patch=patch, arch=arch,
-                           weights=str(weights) if weights else None).items():  # fmt: skip
+    """Extract descriptors exactly as the server does for image uploads and image queries.
+
+    The extractor config (with the CNN preset's name) is written beside the output as
+    ``<out>.extractor.json``. An interrupted run resumes where it stopped when started again
+    with the same folder and options (``--restart`` starts over)."""
+    raw: dict[str, Any] = {"kind": extractor or ("cnn" if preset else DEFAULT_EXTRACTOR["kind"])}
+    for key, value in dict(width=width, height=height, patch=patch, preset=preset).items():
         if value is not None:
             raw[key] = value
     config = parse_extractor_config(raw)
+    runtime = {f"extractor_{k}": v for k, v in dict(batch_size=batch_size, device=device,
+                                                           threads=threads).items()
+               if v is not None}  # fmt: skip
     paths = list_images(images_dir)
-    ext = make_extractor(config)
+    try:
+        settings = ImagingSettings(**runtime)
+    except ValidationError as exc:
+        raise InvalidParameterError(f"--device: {exc.errors()[0]['msg']}") from exc
+    ext = make_extractor(config, settings)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console) as bar:  # fmt: skip
-        task = bar.add_task(f"{config.kind} {images_dir.name}", total=len(paths))
-        X = extract_paths(ext, paths, lambda done, _total: bar.update(task, completed=done))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    with open(tmp, "wb") as fh:
-        np.save(fh, X, allow_pickle=False)
-    tmp.replace(out)
+        label = getattr(config, "preset", None) or config.kind
+        task = bar.add_task(f"{label} {images_dir.name}", total=len(paths))
+        result = extract_folder(ext, paths, out, restart=restart,
+                                progress=lambda done, _n: bar.update(task, completed=done))  # fmt: skip
     sidecar = out.with_name(out.name + ".extractor.json")
-    sidecar.write_text(json.dumps(config.model_dump(), indent=2) + "\n")
-    console.print(f"wrote {out}: {X.shape[0]} frames × d={X.shape[1]} ({config.kind}); {sidecar}")
+    sidecar.write_text(json.dumps(config.model_dump(mode="json"), indent=2) + "\n")
+    resumed = f", resumed after {result.resumed_from}" if result.resumed_from else ""
+    console.print(f"wrote {out}: {result.n_frames} frames × d={result.n_features} "
+                  f"({label}{resumed}); {sidecar}")  # fmt: skip
 
 
 def register(app: typer.Typer) -> None:

@@ -232,7 +232,7 @@ class LocalizationService:
 
         def check(n_frames: int, n_features: int) -> None:
             """Everything the shape decides, before the data is read (npy header, image count)."""
-            d = extractor_once().n_features if config is not None else None
+            d = image_config.n_features if config is not None else None  # no network built
             if d is not None and d != n_features:
                 raise DimensionMismatchError(
                     f"the extractor {image_config.kind} produces d={d} but the uploaded "

