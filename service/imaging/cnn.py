@@ -70,7 +70,7 @@ def weights_path(spec: WeightsSpec) -> Path:
 
 
 def _build_trunk(config: CnnConfig) -> Any:
-    """The network's stem and blocks ``0 … max(layers)`` with weights and folded batch norms."""
+    """The network's stem and blocks up to the deepest layer, with weights and folded batch norms."""
     torch = _import("torch", "torch")
     from torch.nn.utils.fusion import fuse_conv_bn_eval
 
@@ -83,7 +83,7 @@ def _build_trunk(config: CnnConfig) -> Any:
     identity = torch.nn.Identity
     net._conv_stem = fuse_conv_bn_eval(net._conv_stem, net._bn0)
     net._bn0 = identity()
-    blocks = list(net._blocks)[: max(config.layers) + 1]
+    blocks = list(net._blocks)[: config.layers[-1].block + 1]
     for b in blocks:
         if b._block_args.expand_ratio != 1:
             b._expand_conv = fuse_conv_bn_eval(b._expand_conv, b._bn0)
@@ -157,16 +157,15 @@ class CnnExtractor:
         torch, c = self._torch, self.config
         pool = (torch.nn.functional.adaptive_avg_pool2d if c.pooling == "avg"
                 else torch.nn.functional.adaptive_max_pool2d)  # fmt: skip
-        wanted = set(c.layers)
-        pooled: list[Any] = []
+        grids = {layer.block: layer.grid for layer in c.layers}
+        pooled: list[np.ndarray] = []
         with self._lock, self._cpu_threads(), torch.inference_mode():
             x = self._stem(torch.from_numpy(batch).to(self.device))
             for i, block in enumerate(self._blocks):
                 x = block(x)
-                if i in wanted:
-                    pooled.append(pool(x, c.grid))
-            F = torch.cat(pooled, dim=1).float().cpu().numpy()
-        return _normalize(F, c.normalization)
+                if i in grids:
+                    pooled.append(pool(x, grids[i]).float().cpu().numpy())
+        return np.concatenate([_normalize(F, c.normalization) for F in pooled], axis=1)
 
     @contextmanager
     def _cpu_threads(self) -> Iterator[None]:

@@ -65,11 +65,15 @@ class HogConfig(_Base):
 ExtractorConfig = Annotated[PatchNormConfig | HogConfig | CnnConfig, Field(discriminator="kind")]
 _ADAPTER: TypeAdapter[PatchNormConfig | HogConfig | CnnConfig] = TypeAdapter(ExtractorConfig)
 
-DEFAULT_EXTRACTOR: dict[str, Any] = PatchNormConfig.model_validate({}).model_dump()
+# The default image extractor: the default CNN preset (exact NN on Nordland summer→winter,
+# frames [0, 1788): 61 % within ±5 frames against 24.5 % for patchnorm). ``patchnorm`` and
+# ``hog`` stay available by name.
+DEFAULT_EXTRACTOR: dict[str, Any] = cnn_config({"kind": "cnn"}).model_dump(mode="json")
 
 
 def parse_extractor_config(raw: dict[str, Any] | None) -> PatchNormConfig | HogConfig | CnnConfig:
-    """Validate an extractor config (``None`` → the default ``patchnorm``)."""
+    """Validate an extractor config (``None`` → :data:`DEFAULT_EXTRACTOR`; a dict without a
+    ``kind`` is a ``patchnorm`` config, as stored before other kinds existed)."""
     data = dict(raw or DEFAULT_EXTRACTOR)
     data.setdefault("kind", "patchnorm")
     try:
@@ -78,6 +82,7 @@ def parse_extractor_config(raw: dict[str, Any] | None) -> PatchNormConfig | HogC
         return _ADAPTER.validate_python(data)
     except ValidationError as exc:
         msgs = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'extractor'}: {e['msg']}" for e in exc.errors()
+            f"{'.'.join(str(p) for p in e['loc']) or 'extractor'}: "
+            f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()
         )
         raise InvalidParameterError(f"invalid extractor configuration: {msgs}") from exc

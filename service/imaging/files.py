@@ -38,10 +38,12 @@ def extract_blobs(
     progress: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
     """Descriptors of ``(name, bytes)`` images, decoded and extracted a batch at a time (at
-    most ``BATCH`` images and :data:`~service.imaging.decode.BATCH_PIXELS` decoded pixels)."""
+    most ``extractor.batch_size`` images and :data:`~service.imaging.decode.BATCH_PIXELS`
+    decoded pixels), so memory stays bounded and ``progress`` moves with every forward pass."""
     out = np.empty((total, extractor.n_features), dtype=np.float32)
+    step = max(1, int(getattr(extractor, "batch_size", BATCH)))
     done = 0
-    for batch in decode_batches(blobs, BATCH):
+    for batch in decode_batches(blobs, step):
         if done + len(batch) > total:
             raise InvalidInputError(f"expected {total} images, got more")
         out[done : done + len(batch)] = extractor.extract(batch)

@@ -22,8 +22,8 @@ def test_extract_orders_frames_by_file_name(tmp_path) -> None:
         (frames / f"img-{i:03d}.png").write_bytes(png_bytes(i))
     (frames / "notes.txt").write_text("not a frame")
     out = tmp_path / "ref.npy"
-    r = runner.invoke(app, ["extract", str(frames), "--out", str(out), "--width", "32",
-                            "--height", "16", "--patch", "8"])  # fmt: skip
+    r = runner.invoke(app, ["extract", str(frames), "--out", str(out), "--extractor", "patchnorm",
+                            "--width", "32", "--height", "16", "--patch", "8"])  # fmt: skip
     assert r.exit_code == 0, r.output
     X = np.load(out, allow_pickle=False)
     config = json.loads((tmp_path / "ref.npy.extractor.json").read_text())
@@ -38,7 +38,8 @@ def test_extract_errors_are_clear(tmp_path) -> None:
     (tmp_path / "bad.png").write_bytes(b"not a png")
     r = runner.invoke(app, ["extract", str(tmp_path), "--out", str(tmp_path / "x.npy")])
     assert r.exit_code == 2 and "not a decodable image" in r.output
-    r = runner.invoke(app, ["extract", str(tmp_path), "--out", "x.npy", "--width", "60"])
+    r = runner.invoke(app, ["extract", str(tmp_path), "--out", "x.npy", "--extractor", "patchnorm",
+                            "--width", "60"])  # fmt: skip
     assert r.exit_code == 2 and "multiples of patch" in r.output
 
 

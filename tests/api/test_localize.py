@@ -114,7 +114,8 @@ def test_images_need_an_extractor_and_are_decoded(client: TestClient, auth, regi
         for i in range(30):
             zf.writestr(f"frames/img-{i:03d}.png", png_bytes(i))
     r = client.post("/v1/maps/imgs/routes", headers=auth, files={"file": ("route.zip", buf.getvalue())},
-                    data={"trainer": "ridge", "width": "32", "height": "16", "patch": "8"})  # fmt: skip
+                    data={"trainer": "ridge", "extractor": "patchnorm", "width": "32", "height": "16",
+                          "patch": "8"})  # fmt: skip
     assert r.status_code == 202, r.text
     client.app.state.context.store.refresh()
     ext = make_extractor(registry.get_version("imgs", 1).extractor)

