@@ -56,13 +56,11 @@ def extract(
     ``<out>.extractor.json``. An interrupted run resumes where it stopped when started again
     with the same folder and options (``--restart`` starts over)."""
     raw: dict[str, Any] = {"kind": extractor or ("cnn" if preset else DEFAULT_EXTRACTOR["kind"])}
-    for key, value in dict(width=width, height=height, patch=patch, preset=preset).items():
-        if value is not None:
-            raw[key] = value
+    options = {"width": width, "height": height, "patch": patch, "preset": preset}
+    raw.update({k: v for k, v in options.items() if v is not None})
     config = parse_extractor_config(raw)
-    runtime = {f"extractor_{k}": v for k, v in dict(batch_size=batch_size, device=device,
-                                                           threads=threads).items()
-               if v is not None}  # fmt: skip
+    speed = {"batch_size": batch_size, "device": device, "threads": threads}
+    runtime = {f"extractor_{k}": v for k, v in speed.items() if v is not None}
     paths = list_images(images_dir)
     try:
         settings = ImagingSettings(**runtime)

@@ -1,5 +1,6 @@
 """Images → descriptors: pluggable extractors described by a JSON config stored per version."""
 
+from service.imaging.cnn_config import DEFAULT_PRESET, PRESETS
 from service.imaging.config import (
     DEFAULT_EXTRACTOR,
     CnnConfig,
@@ -7,7 +8,6 @@ from service.imaging.config import (
     PatchNormConfig,
     parse_extractor_config,
 )
-from service.imaging.cnn_config import DEFAULT_PRESET, PRESETS
 from service.imaging.decode import decode_image, image_pixels
 from service.imaging.extractors import Extractor, clear_extractor_cache, make_extractor
 from service.imaging.files import extract_blobs, extract_paths, is_image_name, list_images

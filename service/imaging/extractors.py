@@ -20,7 +20,6 @@ from service.encoding.features import patch_normalize
 from service.imaging.config import CnnConfig, HogConfig, PatchNormConfig, parse_extractor_config
 from service.imaging.settings import ImagingSettings
 
-
 ExtractorConfigModel = PatchNormConfig | HogConfig | CnnConfig
 MAX_CACHED = 4
 

@@ -17,6 +17,7 @@ import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -54,7 +55,7 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def _write_atomic(path: Path, write: Callable[[object], None]) -> None:
+def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as fh:
         write(fh)
@@ -109,8 +110,8 @@ def extract_folder(
     if stored != manifest:
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
-        _write_atomic(work / "manifest.json",
-                      lambda fh: fh.write(json.dumps(manifest, indent=2).encode()))  # type: ignore[attr-defined]  # fmt: skip
+        text = json.dumps(manifest, indent=2).encode()
+        _write_atomic(work / "manifest.json", lambda fh: fh.write(text))
         resumed = 0
     else:
         resumed = _done_chunks(work, n, d, chunk_rows)

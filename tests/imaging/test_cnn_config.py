@@ -87,3 +87,11 @@ def test_a_stored_config_parses_after_its_preset_is_retired() -> None:
     partial = {"kind": "cnn", "preset": "retired-preset-name", "width": 128}
     with pytest.raises(InvalidParameterError, match="unknown CNN preset"):
         parse_extractor_config(partial)
+
+
+def test_block_tables_match_the_installed_architecture() -> None:
+    from efficientnet_lite_pytorch import EfficientNet
+
+    for name, spec in WEIGHTS.items():
+        net = EfficientNet.from_name(name, image_size=None)  # architecture only, no weights
+        assert tuple(b._block_args.output_filters for b in net._blocks) == spec.block_channels

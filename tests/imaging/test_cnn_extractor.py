@@ -21,16 +21,16 @@ CPU = ImagingSettings(extractor_device="cpu", extractor_batch_size=2, extractor_
 # statistics, computed once with the pinned weights. A change of weights, preprocessing,
 # pooling or normalisation moves them far beyond the tolerance (float32, any x86 CPU).
 PINNED = {
-    "index": [0, 7, 100, 1000, 3000, 5200, 6000, 8000],  # block 4 is 0…5119, block 10 the rest
-    "values": [-6.82084, -0.416099, 12.112368, 10.828837, -9.163427, 2.648875, 2.5191, -6.60075],
-    "mean": 0.572949,
-    "std": 6.489711,
+    "index": [0, 7, 100, 1000, 2000, 3000, 4000, 5119],
+    "values": [-6.82084, -0.416099, 12.112368, 10.828837, -6.913927, -9.163427, 4.369661, -2.294088],
+    "mean": 0.646715,
+    "std": 7.029996,
 }
 
 
 @pytest.fixture(scope="module")
 def cnn() -> CnnExtractor:
-    ext = make_extractor({"kind": "cnn", "preset": "lite0-mid"}, CPU)
+    ext = make_extractor({"kind": "cnn", "preset": "lite0-b4"}, CPU)
     assert isinstance(ext, CnnExtractor)
     return ext
 
@@ -44,12 +44,21 @@ def test_output_on_a_fixed_image_is_pinned(cnn: CnnExtractor) -> None:
     assert X[0].std() == pytest.approx(PINNED["std"], abs=1e-3)
     # different scenes give clearly different descriptors
     assert np.linalg.norm(X[0] - X[1]) > 0.1 * np.linalg.norm(X[0])
-    assert cnn.config.preset == "lite0-mid" and cnn.config.n_features == 8704
+    assert cnn.config.preset == "lite0-b4" and cnn.config.n_features == 5120
 
 
 def test_the_pinned_preset_is_the_default_image_extractor() -> None:
-    assert DEFAULT_PRESET == "lite0-mid"
+    assert DEFAULT_PRESET == "lite0-b4"
     assert DEFAULT_EXTRACTOR["kind"] == "cnn" and DEFAULT_EXTRACTOR["preset"] == DEFAULT_PRESET
+
+
+def test_several_layers_are_pooled_on_their_grids_and_concatenated(cnn: CnnExtractor) -> None:
+    mid = make_extractor({"kind": "cnn", "preset": "lite0-mid"}, CPU)
+    images = [scene(0), scene(4)]
+    X = mid.extract(images)
+    assert X.shape == (2, 40 * 8 * 16 + 112 * 4 * 8)
+    np.testing.assert_allclose(X[:, :5120], cnn.extract(images), atol=1e-5)  # block 4 first
+    assert np.abs(X[:, 5120:]).max() > 0.1
 
 
 def test_deterministic_and_independent_of_batching(cnn: CnnExtractor) -> None:
