@@ -9,7 +9,6 @@ are run. One forward at a time per extractor (a lock), on a bounded number of CP
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import importlib.metadata
 import threading
@@ -21,6 +20,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from service.encoding.artifacts import sha256_file
 from service.errors import UnavailableError
 from service.imaging.cnn_config import ARCH_PACKAGE, CnnConfig, WeightsSpec
 from service.imaging.settings import ImagingSettings
@@ -60,7 +60,7 @@ def weights_path(spec: WeightsSpec) -> Path:
     path = Path(module.__file__ or "").parent / "models" / spec.file
     if not path.is_file():
         raise UnavailableError(f"{spec.package} is installed without its weights file {path.name}")
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = sha256_file(path)
     if digest != spec.sha256:
         raise UnavailableError(
             f"{path} has sha256 {digest[:12]}…, expected {spec.sha256[:12]}… (a corrupt "

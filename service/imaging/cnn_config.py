@@ -190,8 +190,13 @@ def cnn_config(raw: dict[str, Any]) -> CnnConfig:
     try:
         return CnnConfig.model_validate(merged)
     except ValidationError as exc:
-        msgs = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'extractor'}: "
-            f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()
-        )
-        raise InvalidParameterError(f"invalid extractor configuration: {msgs}") from exc
+        raise invalid_config(exc) from exc
+
+
+def invalid_config(exc: ValidationError) -> InvalidParameterError:
+    """The client error for an invalid extractor config, naming each bad field."""
+    msgs = "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or 'extractor'}: "
+        f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()
+    )
+    return InvalidParameterError(f"invalid extractor configuration: {msgs}")

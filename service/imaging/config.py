@@ -7,8 +7,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from service.errors import InvalidParameterError
-from service.imaging.cnn_config import CnnConfig, cnn_config
+from service.imaging.cnn_config import CnnConfig, cnn_config, invalid_config
 
 
 class _Base(BaseModel):
@@ -81,8 +80,4 @@ def parse_extractor_config(raw: dict[str, Any] | None) -> PatchNormConfig | HogC
             return cnn_config(data)
         return _ADAPTER.validate_python(data)
     except ValidationError as exc:
-        msgs = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'extractor'}: "
-            f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()
-        )
-        raise InvalidParameterError(f"invalid extractor configuration: {msgs}") from exc
+        raise invalid_config(exc) from exc
