@@ -95,3 +95,16 @@ def test_block_tables_match_the_installed_architecture() -> None:
     for name, spec in WEIGHTS.items():
         net = EfficientNet.from_name(name, image_size=None)  # architecture only, no weights
         assert tuple(b._block_args.output_filters for b in net._blocks) == spec.block_channels
+
+
+def test_the_wire_default_kind_is_the_servers_default() -> None:
+    from service.imaging import DEFAULT_EXTRACTOR, PRESETS
+    from service.wire import TrainingOptions
+    from service.wire.training import DEFAULT_EXTRACTOR_KIND
+
+    assert DEFAULT_EXTRACTOR_KIND == DEFAULT_EXTRACTOR["kind"]
+    assert TrainingOptions(width=128).extractor_config() == {"kind": DEFAULT_EXTRACTOR["kind"], "width": 128}
+    preset = next(iter(PRESETS))
+    assert TrainingOptions(preset=preset).extractor_config() == {"kind": "cnn", "preset": preset}
+    assert TrainingOptions(extractor="patchnorm", patch=8).extractor_config() == {
+        "kind": "patchnorm", "patch": 8}  # fmt: skip
