@@ -90,5 +90,6 @@ class PlaceRecognizer(BaseEstimator):  # type: ignore[misc]
     ) -> PlaceRecognizer: ...
 
     def _set_fitted(self, n_frames: int, n_features: int) -> None:
+        self.__dict__.pop("_serving_plan", None)  # what serving precomputed is stale
         self.n_frames_ = int(n_frames)
         self.n_features_in_ = int(n_features)

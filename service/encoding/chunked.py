@@ -22,6 +22,7 @@ from service.encoding.footprint import Footprint
 from service.encoding.normalization import Normalizer
 from service.encoding.patterns import select_columns
 from service.encoding.progress import ProgressFn, Steps
+from service.encoding.serving_plan import plan_for
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
 
@@ -209,41 +210,16 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
 
     # -- querying -----------------------------------------------------------------------
     def localize(self, X: Any) -> Localization:
+        """Chunk classifier → ``top_chunks`` chunks → exact joint decode of chunk and digits,
+        all queries at once (:mod:`service.encoding.serving_plan`)."""
         Q = self._check_query(X)
-        Qn = self.normalizer_.transform(Q)
-        n_q = Qn.shape[0]
-        chunk_lp = self.chunk_classifier_.log_probs(Qn)
-        m = min(int(self.top_chunks), len(self.chunk_encoders_))
-        top = np.argsort(-chunk_lp, axis=1, kind="stable")[:, :m]
-        best_score = np.full(n_q, -np.inf)
-        best_index = np.zeros(n_q, dtype=np.int64)
-        best_chunk = np.zeros(n_q, dtype=np.int64)
-        for rank in range(m):
-            for c in np.unique(top[:, rank]):
-                rows = np.flatnonzero(top[:, rank] == c)
-                local, score = self.chunk_encoders_[c]._decode_normalised(Qn[rows])
-                score = score + chunk_lp[rows, c]
-                better = score > best_score[rows]
-                upd = rows[better]
-                best_score[upd] = score[better]
-                best_index[upd] = local[better] + self.chunk_bounds_[c]
-                best_chunk[upd] = c
-        return Localization(best_index, np.exp(best_score), best_chunk, best_score)
+        return plan_for(self).localize(Q)
 
     def frame_log_scores(self, X: Any) -> np.ndarray:
         """Log-probability of every frame, ``(n_q, N)``: chunk log-probability plus the chunk
         encoder's frame scores, for the ``top_chunks`` chunks of each query (−inf elsewhere)."""
-        Qn = self.normalizer_.transform(self._check_query(X))
-        chunk_lp = self.chunk_classifier_.log_probs(Qn)
-        m = min(int(self.top_chunks), len(self.chunk_encoders_))
-        top = np.argsort(-chunk_lp, axis=1, kind="stable")[:, :m]
-        out = np.full((Qn.shape[0], self.n_frames_), -np.inf)
-        for c in np.unique(top):
-            rows = np.flatnonzero((top == c).any(axis=1))
-            s, e = self.chunk_bounds_[c], self.chunk_bounds_[c + 1]
-            enc = self.chunk_encoders_[c]
-            out[rows, s:e] = enc._frame_log_scores_normalised(Qn[rows]) + chunk_lp[rows, c, None]
-        return out
+        Q = self._check_query(X)
+        return plan_for(self).frame_log_scores(Q)
 
     # -- storage ------------------------------------------------------------------------
     def footprint(self) -> Footprint:

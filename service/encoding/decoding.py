@@ -10,11 +10,16 @@ Scores of each encoder become log-probabilities (a log-softmax over its classes)
 
 Every decode returns the joint log-probability of the chosen digits; ``exp`` of it is the
 confidence a caller can threshold to reject queries.
+
+The estimators answer through the exact, vectorised decoder of
+:mod:`service.encoding.serving_plan`; this module is the reference it is tested and
+benchmarked against (:func:`reference_localize`: per-chunk loops and a beam per digit).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy.special import log_softmax
@@ -79,3 +84,33 @@ def joint_decode(
         score = cand_score[rows, keep]
     best = np.argmax(score, axis=1)
     return prefix[np.arange(n_q), best], score[np.arange(n_q), best]
+
+
+def reference_localize(model: Any, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(index, chunk, log_score)`` of a phase or chunked encoder by the reference decoder:
+    float64 scores, :func:`decode` (the model's ``decode`` mode and ``beam_width``) per
+    chunk, and the best of the ``top_chunks`` chunks by joint log-probability."""
+    encoders = getattr(model, "chunk_encoders_", None)
+    if encoders is None:
+        norm = model.normalizer_
+        index, score = model._decode_normalised(Q if norm is None else norm.transform(Q))
+        return index, np.zeros_like(index), score
+    Qn = model.normalizer_.transform(Q)
+    n_q = Qn.shape[0]
+    chunk_lp = model.chunk_classifier_.log_probs(Qn)
+    m = min(int(model.top_chunks), len(encoders))
+    top = np.argsort(-chunk_lp, axis=1, kind="stable")[:, :m]
+    best_score = np.full(n_q, -np.inf)
+    best_index = np.zeros(n_q, dtype=np.int64)
+    best_chunk = np.zeros(n_q, dtype=np.int64)
+    for rank in range(m):
+        for c in np.unique(top[:, rank]):
+            rows = np.flatnonzero(top[:, rank] == c)
+            local, score = encoders[c]._decode_normalised(Qn[rows])
+            score = score + chunk_lp[rows, c]
+            better = score > best_score[rows]
+            upd = rows[better]
+            best_score[upd] = score[better]
+            best_index[upd] = local[better] + model.chunk_bounds_[c]
+            best_chunk[upd] = c
+    return best_index, best_chunk, best_score

@@ -16,6 +16,7 @@ from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, index_to_labels, validate_periods
 from service.encoding.progress import ProgressFn, Steps
 from service.encoding.quantization import check_dtype
+from service.encoding.serving_plan import plan_for
 from service.encoding.trainers import TRAINERS
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
@@ -32,8 +33,11 @@ class PhaseEncoder(PlaceRecognizer):
     gamma : L1 bound of the pattern weights; ``None`` uses ``√d'``.
     trainer : ``logreg`` | ``svm`` | ``ridge`` | ``torch``.
     C : inverse regularisation strength of the trainers (paper code: 4).
-    decode : ``joint`` (beam search over valid indices) or ``argmax`` (paper).
-    beam_width : beams kept per digit in joint decoding.
+    decode : ``joint`` (best valid index) or ``argmax`` (paper: each digit on its own, and
+        jointly when that index is off the route). ``localize`` decodes exactly
+        (:mod:`service.encoding.serving_plan`), where the two coincide.
+    beam_width : beams per digit of the reference beam-search decoder
+        (:func:`service.encoding.decoding.reference_localize`).
     dtype : storage dtype of the weights: float64, float32, float16 or int8.
     normalize : z-score columns with the training statistics (stored in the model).
     random_state : seed for the trainers that use one.
@@ -151,31 +155,19 @@ class PhaseEncoder(PlaceRecognizer):
         return self.normalizer_.transform(Q) if self.normalizer_ is not None else Q
 
     def _decode_normalised(self, Qn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Indices and joint log-probabilities for already-normalised queries."""
+        """Reference beam-search decode of already-normalised queries (indices, scores)."""
         logps = [dc.log_probs(Qn) for dc in self.digits_]
         return decode(logps, self.periods_, self.n_frames_, self.decode, int(self.beam_width))
 
-    def _frame_log_scores_normalised(self, Qn: np.ndarray) -> np.ndarray:
-        """Joint log-probability of every frame of the route, shape ``(n_q, N)``."""
-        labels = index_to_labels(np.arange(self.n_frames_), self.periods_)
-        out = np.zeros((Qn.shape[0], self.n_frames_))
-        for j, dc in enumerate(self.digits_):
-            out += dc.log_probs(Qn)[:, labels[:, j]]
-        return out
-
     def frame_log_scores(self, X: Any) -> np.ndarray:
         """Log-probability of every frame for every query, ``(n_q, N)`` (for sequence filtering)."""
-        return self._frame_log_scores_normalised(self._transform(self._check_query(X)))
+        Q = self._check_query(X)
+        return plan_for(self).frame_log_scores(Q)
 
     def localize(self, X: Any) -> Localization:
+        """Exact decode through the serving plan (float32 products, certified in float64)."""
         Q = self._check_query(X)
-        index, log_score = self._decode_normalised(self._transform(Q))
-        return Localization(
-            index=index,
-            confidence=np.exp(log_score),
-            chunk=np.zeros_like(index),
-            log_score=log_score,
-        )
+        return plan_for(self).localize(Q)
 
     # -- storage ------------------------------------------------------------------------
     def footprint(self) -> Footprint:
