@@ -61,6 +61,15 @@ class Settings(BaseSettings):
     reload_interval_s: float = Field(
         1.0, gt=0, description="how often the server checks the registry for activations"
     )
+    batching: bool = Field(
+        True, description="micro-batch localize requests of concurrent callers (gRPC, REST)"
+    )
+    batch_max_size: int = Field(256, ge=1, le=65536, description="largest micro-batch")
+    batch_max_wait_ms: float = Field(
+        0.0, ge=0.0, le=100.0,
+        description="how long a micro-batch waits for more requests after its first (ms); "
+        "requests queued while the previous batch computes join without waiting",
+    )
     log_level: str = Field("info", description="uvicorn / logging level")
     registry_url: str | None = Field(
         None,

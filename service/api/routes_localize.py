@@ -1,4 +1,11 @@
-"""``POST /v1/localize`` and ``POST /v1/localize/batch``: descriptors or images → frame index."""
+"""``POST /v1/localize`` and ``POST /v1/localize/batch``: descriptors or images → frame index.
+
+Requests are validated by the wire schemas (which also document them in ``/docs``); answers
+are written with orjson straight from the result arrays (the fields of ``Localization`` and
+``BatchLocalization``), without a second pydantic pass. Single descriptors go to the
+micro-batcher shared with gRPC; batches, images and a server without batcher run on the
+thread pool.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +13,8 @@ import base64
 import binascii
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Query, Request
+import orjson
+from fastapi import APIRouter, Header, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
@@ -16,9 +24,7 @@ from service.api.schemas import (
     IMAGES_FORM,
     DimParam,
     MapParam,
-    batch_localization,
     body_doc,
-    localization,
 )
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
 from service.errors import EmptyInputError, InvalidInputError
@@ -44,6 +50,24 @@ def _b64(text: str, field: str) -> bytes:
 
 def _service(request: Request) -> LocalizationService:
     return request.app.state.context.service  # type: ignore[no-any-return]
+
+
+def _one(result: LocalizeResult) -> Response:
+    """:class:`~service.wire.Localization` as JSON."""
+    return Response(orjson.dumps({
+        "map": result.map, "version": result.version, "index": int(result.index[0]),
+        "chunk": int(result.chunk[0]), "confidence": float(result.confidence[0]),
+        "latency_ms": result.latency_ms,
+    }), media_type="application/json")  # fmt: skip
+
+
+def _many(result: LocalizeResult) -> Response:
+    """:class:`~service.wire.BatchLocalization` as JSON (arrays serialised by orjson)."""
+    return Response(orjson.dumps({
+        "map": result.map, "version": result.version, "n": len(result),
+        "index": result.index, "chunk": result.chunk, "confidence": result.confidence,
+        "latency_ms": result.latency_ms,
+    }, option=orjson.OPT_SERIALIZE_NUMPY), media_type="application/json")  # fmt: skip
 
 
 async def _form(request: Request) -> tuple[str, list[tuple[str, bytes]]]:
@@ -75,7 +99,7 @@ async def _json_body(request: Request) -> bytes:
     openapi_extra=body_doc(LocalizeRequest, IMAGE_FORM),
     summary="Localize one descriptor or image",
 )
-async def localize(request: Request) -> Localization:
+async def localize(request: Request) -> Response:
     """JSON ``{"map", "descriptor" | "descriptor_b64" | "image_b64"}`` or a multipart form
     with a ``map`` field and an ``image`` file."""
     svc = _service(request)
@@ -84,11 +108,15 @@ async def localize(request: Request) -> Localization:
         name, images = await _form(request)
         if len(images) != 1:
             raise InvalidInputError(f"send one image here ({len(images)} sent); use /v1/localize/batch")
-        result = await run_in_threadpool(svc.localize_images, name, images)
-        return localization(result)
+        return _one(await run_in_threadpool(svc.localize_images, name, images))
     req = LocalizeRequest.model_validate_json(await _json_body(request))
-    result = await run_in_threadpool(_localize_one, svc, req)
-    return localization(result)
+    batcher = request.app.state.context.batcher
+    if batcher is None or req.image_b64 is not None:
+        return _one(await run_in_threadpool(_localize_one, svc, req))
+    if req.descriptor_b64 is not None:
+        raw = decode_float32(_b64(req.descriptor_b64, "descriptor_b64"), None, "descriptor_b64")
+        return _one(await batcher.localize(req.map, raw))
+    return _one(await batcher.localize(req.map, _descriptor_row(req)))
 
 
 def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:
@@ -97,10 +125,14 @@ def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeRes
     if req.descriptor_b64 is not None:
         raw = decode_float32(_b64(req.descriptor_b64, "descriptor_b64"), None, "descriptor_b64")
         return svc.localize(req.map, raw)
+    return svc.localize(req.map, _descriptor_row(req))
+
+
+def _descriptor_row(req: LocalizeRequest) -> list[list[float]]:
     assert req.descriptor is not None
     if not req.descriptor:
         raise EmptyInputError("descriptor is an empty list")
-    return svc.localize(req.map, [req.descriptor])  # one row: a wrong d is named as such
+    return [req.descriptor]  # one row: a wrong d is named as such
 
 
 @router.post(
@@ -117,7 +149,7 @@ async def localize_batch(
     d_q: Annotated[DimParam, Query(alias="d", description="descriptor size (binary)")] = None,
     map_h: Annotated[MapParam, Header(alias="X-Gridplace-Map", description="or the map here")] = None,
     d_h: Annotated[DimParam, Header(alias="X-Gridplace-Dim", description="or d here")] = None,
-) -> BatchLocalization:
+) -> Response:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64"}``, a multipart form
     (``map`` + ``images`` files), or an ``application/octet-stream`` body of float32."""
     svc = _service(request)
@@ -136,7 +168,7 @@ async def localize_batch(
     else:
         req = BatchLocalizeRequest.model_validate_json(await _json_body(request))
         result = await run_in_threadpool(_localize_many, svc, req)
-    return batch_localization(result)
+    return _many(result)
 
 
 def _localize_many(svc: LocalizationService, req: BatchLocalizeRequest) -> LocalizeResult:

@@ -11,6 +11,7 @@ import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from service.core.batching import MicroBatcher
 from service.core.localization import LocalizationService
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import ModelStore
@@ -31,12 +32,18 @@ class ServiceContext:
     store: ModelStore
     metrics: ServiceMetrics
     service: LocalizationService
+    batcher: MicroBatcher | None = None  # None: localize inline (``batching`` off)
 
     def start(self) -> None:
-        """Start the hot-swap poller; its first pass loads every active version."""
+        """Start the hot-swap poller (its first pass loads every active version) and the
+        micro-batcher."""
         self.store.start()
+        if self.batcher is not None:
+            self.batcher.start()
 
     def close(self) -> None:
+        if self.batcher is not None:
+            self.batcher.stop()
         self.store.stop()
         try:
             self.backend.close()
@@ -64,4 +71,7 @@ def build_context(
     store = ModelStore(registry, settings.reload_interval_s)
     service = LocalizationService(settings, registry, backend, store, metrics)
     metrics.watch_state(store.snapshot, service.queue_depth)
-    return ServiceContext(settings, registry, backend, store, metrics, service)
+    batcher = None
+    if settings.batching:
+        batcher = MicroBatcher(service, settings.batch_max_size, settings.batch_max_wait_ms / 1000)
+    return ServiceContext(settings, registry, backend, store, metrics, service, batcher)

@@ -79,6 +79,12 @@ class ServiceMetrics:
             "gridplace_localize_queries", "descriptors localized", ["map", "input"],
             registry=self.registry,
         )  # fmt: skip
+        self.batch_size = Histogram(
+            "gridplace_localize_batch_size",
+            "requests answered together by one micro-batch",
+            buckets=(1, 2, 4, 8, 16, 32, 64, 128, 256, 1024),
+            registry=self.registry,
+        )
         self.job_seconds = Histogram(
             "gridplace_training_job_seconds",
             "wall time of finished training jobs, by outcome",

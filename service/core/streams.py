@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.core.localization import LocalizationService
+from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
 from service.encoding.sequence import SequenceConfig, SequenceFilter
 from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
@@ -75,7 +75,7 @@ def _chunk_of(loaded: LoadedModel, index: int) -> int:
 class FleetStream:
     """The state of one open stream: a sequence filter per vehicle (least recently seen
     vehicles are forgotten beyond ``max_vehicles``). Not thread-safe: one stream's frames are
-    answered one after another, in order."""
+    answered one after another, in order (by the caller, or by the micro-batcher's worker)."""
 
     def __init__(
         self,
@@ -98,11 +98,21 @@ class FleetStream:
         """Localize one frame (raises a :class:`~service.errors.GridplaceError` for a bad one;
         the stream's other state is untouched by a failure)."""
         start = time.perf_counter()
+        loaded, Q = self.prepare(frame)
+        return self.finish(frame, loaded, Q, self.service.answer(loaded, Q, start, "stream"), start)
+
+    def prepare(self, frame: Frame) -> tuple[LoadedModel, np.ndarray]:
+        """The served version (one reference for the frame: hot-swap safe) and the frame's
+        validated ``(1, d)`` query; raises for a bad frame."""
         if len(frame.vehicle_id) > MAX_VEHICLE_ID:
             raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
-        loaded = self.service.served(frame.map)  # one reference for the frame: hot-swap safe
-        Q = self._query(loaded, frame)
-        raw = self.service.answer(loaded, Q, start, "stream")
+        loaded = self.service.served(frame.map)
+        return loaded, self._query(loaded, frame)
+
+    def finish(self, frame: Frame, loaded: LoadedModel, Q: np.ndarray, raw: LocalizeResult,
+               start: float) -> FrameAnswer:  # fmt: skip
+        """The frame's answer from its raw localization (``raw``, e.g. computed in a batch
+        with other frames): the vehicle's sequence filter is updated here, in frame order."""
         raw_index, raw_conf = int(raw.index[0]), float(raw.confidence[0])
         index, chunk, conf, used = raw_index, int(raw.chunk[0]), raw_conf, 1
         if frame.sequence_filter:

@@ -7,6 +7,11 @@ cannot hold up other callers' messages, nor use every thread streams need. A str
 are still answered one after another, in order. Each method has its own message-size cap
 (``GRIDPLACE_MAX_PUBLIC_BODY_MB`` for ``Localize``, ``GRIDPLACE_MAX_STREAM_FRAME_KB`` per
 stream message); the server refuses anything larger than the largest cap before a handler runs.
+
+With the micro-batcher (:mod:`service.core.batching`, on unless ``GRIDPLACE_BATCHING=false``)
+descriptor ``Localize`` calls and every stream frame go to its worker thread instead, which
+localizes the frames of all concurrent streams and unary calls together; a ``LocalizeStream``
+then reads ahead up to ``STREAM_READ_AHEAD`` frames and answers them in order.
 Unary errors abort the call with the status of the error's class (``GridplaceError.grpc_status``)
 and its code in the ``gridplace-error`` trailing metadata; in ``LocalizeStream`` a bad message
 is answered with ``error`` set and the stream goes on.
@@ -39,6 +44,7 @@ T = TypeVar("T")
 
 SERVICE_NAME = pb.DESCRIPTOR.services_by_name["Localization"].full_name
 ADMIN_MESSAGE_BYTES = 64 * 1024  # ListMaps / GetMap requests carry a name at most
+STREAM_READ_AHEAD = 64  # frames of one stream in flight at once (the stream's backpressure)
 
 
 @dataclass(frozen=True)
@@ -105,6 +111,11 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         try:
             _check_size(request.ByteSize(), self.workers.max_localize_bytes, "a Localize request",
                         "GRIDPLACE_MAX_PUBLIC_BODY_MB")  # fmt: skip
+            batcher = self.ctx.batcher
+            if batcher is not None and request.WhichOneof("query") == "descriptor":
+                result = await batcher.localize_bytes(request.map, request.descriptor,
+                                                      request.dimension or None)  # fmt: skip
+                return messages.localize_response(result)
             return await _off_loop(self.workers.unary, self._localize, request)
         except GridplaceError as exc:
             await _abort(context, exc)
@@ -127,18 +138,56 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         self, request_iterator: AsyncIterator[pb.StreamRequest], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[pb.StreamResponse]:
         stream = FleetStream(self.service, self.sequence)
-        async for request in request_iterator:
+        batcher = self.ctx.batcher
+        if batcher is None:
+            async for request in request_iterator:
+                try:
+                    self._check_frame(request)
+                    answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
+                    yield messages.stream_response(answer)
+                except GridplaceError as exc:
+                    yield messages.stream_error(request, exc)
+                except Exception:
+                    log.exception("LocalizeStream frame %s of %r failed", request.sequence,
+                                  request.vehicle_id)  # fmt: skip
+                    yield messages.stream_error(request, _internal())
+            return
+        pending: asyncio.Queue[tuple[pb.StreamRequest, asyncio.Future[Any]] | None] = (
+            asyncio.Queue(STREAM_READ_AHEAD)
+        )
+
+        async def read() -> None:
             try:
-                _check_size(request.ByteSize(), self.workers.max_frame_bytes, "a stream message",
-                            "GRIDPLACE_MAX_STREAM_FRAME_KB")  # fmt: skip
-                answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
-                yield messages.stream_response(answer)
-            except GridplaceError as exc:
-                yield messages.stream_error(request, exc)
-            except Exception:
-                log.exception("LocalizeStream frame %s of %r failed", request.sequence,
-                              request.vehicle_id)  # fmt: skip
-                yield messages.stream_error(request, _internal())
+                async for request in request_iterator:
+                    try:
+                        self._check_frame(request)
+                        answer = batcher.frame(stream, messages.frame(request))
+                    except GridplaceError as exc:
+                        answer = asyncio.get_running_loop().create_future()
+                        answer.set_exception(exc)
+                    await pending.put((request, answer))
+            finally:
+                await pending.put(None)
+
+        reader = asyncio.create_task(read())
+        try:
+            while (item := await pending.get()) is not None:
+                request, answer = item
+                try:
+                    yield messages.stream_response(await answer)
+                except GridplaceError as exc:
+                    yield messages.stream_error(request, exc)
+                except Exception:
+                    log.exception("LocalizeStream frame %s of %r failed", request.sequence,
+                                  request.vehicle_id)  # fmt: skip
+                    yield messages.stream_error(request, _internal())
+            await reader  # the client's stream ended: surface a broken one
+        finally:
+            reader.cancel()
+
+    def _check_frame(self, request: pb.StreamRequest) -> None:
+        _check_size(request.ByteSize(), self.workers.max_frame_bytes, "a stream message",
+                    "GRIDPLACE_MAX_STREAM_FRAME_KB")  # fmt: skip
 
     async def ListMaps(self, request: pb.ListMapsRequest, context: grpc.aio.ServicerContext) -> pb.ListMapsResponse:
         try:
