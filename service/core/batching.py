@@ -165,7 +165,7 @@ class MicroBatcher:
             stop = self._collect(batch)
             try:
                 self._process(batch)
-            except Exception as exc:  # never lose the callers: fail what is unanswered
+            except Exception as exc:  # noqa: BLE001 - never lose the callers: fail the rest
                 for item in batch:
                     if item.outcome is None:
                         item.fail(_as_gridplace(exc, "a localize batch"))
