@@ -79,6 +79,29 @@ def bench_grpc(
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out)
 
 
+@app.command("scale")
+def bench_scale(
+    sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
+    n_features: Annotated[int, typer.Option("--d", help="descriptor size d")] = 512,
+    frames_per_chunk: Annotated[int, typer.Option(help="frames per chunk (n_chunks = N / this)")] = 10_000,
+    region_length: Annotated[int, typer.Option(help="frames per regional scenery change")] = 2000,
+    query_noise: Annotated[float, typer.Option(help="noise of the SYNTHETIC queries")] = 0.3,
+    queries: Annotated[int, typer.Option(help="noisy queries of random frames")] = 2000,
+    single: Annotated[int, typer.Option(help="single-query repetitions")] = 400,
+    batch: Annotated[int, typer.Option(help="queries per batch call")] = 2000,
+    exact_frames: Annotated[int, typer.Option(help="frames exact NN is measured on")] = 100_000,
+    trainer: Annotated[str, typer.Option()] = "ridge",
+    work_dir: Annotated[Path | None, typer.Option(help="where the route files go (temporary)")] = None,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale.json"),
+) -> None:
+    """Train and serve SYNTHETIC maps up to 1M frames: time, peak RSS, artifact, load, latency,
+    precision, beside the reference decoder and exact NN."""
+    from service.bench.scale_bench import run_scale_bench
+
+    run_scale_bench([int(s) for s in sizes.split(",")], n_features, frames_per_chunk, region_length,
+                    query_noise, queries, single, batch, exact_frames, trainer, out, work_dir)  # fmt: skip
+
+
 from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments)
 
 app.command("paper")(bench_paper)

@@ -32,6 +32,21 @@ _ENCODER_PARAMS = (
 )  # fmt: skip
 
 
+_BLOCK_ROWS = 65536  # rows converted to float64 at a time when a whole route is scanned
+
+
+def check_route(X: Any) -> np.ndarray:
+    """Validate training descriptors without converting them: a float array (or a read-only
+    memory map of a large route) is checked for shape and finiteness in row blocks and
+    returned as it is; anything else goes through :func:`check_descriptors` (float64)."""
+    if not (isinstance(X, np.ndarray) and X.dtype in (np.float32, np.float64) and X.ndim == 2):
+        return check_descriptors(X, min_rows=2, what="training descriptors")
+    check_descriptors(X[:2], min_rows=2, what="training descriptors")  # shape and emptiness
+    for s in range(0, X.shape[0], _BLOCK_ROWS):
+        check_descriptors(X[s : s + _BLOCK_ROWS], what="training descriptors")
+    return X
+
+
 def plan_chunks(n_frames: int, n_chunks: int) -> np.ndarray:
     """Chunk boundaries ``[0, e_1, …, N]`` of ``n_chunks`` near-equal contiguous chunks."""
     if n_chunks < 1:
@@ -84,9 +99,11 @@ def fit_chunk_classifier(
     rho = params.get("chunk_rho") or params.get("rho", 0.5)
     pattern = select_columns(scores, rho, params.get("gamma"))
     cols = pattern.columns
-    X_sel = (np.asarray(X[:, cols], dtype=np.float64) - normalizer.mean[cols]) / normalizer.scale[
-        cols
-    ]
+    X_sel = np.empty((X.shape[0], cols.size))  # filled in row blocks: no full-width temporary
+    mean, scale = normalizer.mean[cols].astype(np.float64), normalizer.scale[cols].astype(np.float64)
+    for s in range(0, X.shape[0], _BLOCK_ROWS):
+        block = np.asarray(X[s : s + _BLOCK_ROWS], dtype=np.float64)[:, cols]
+        X_sel[s : s + _BLOCK_ROWS] = (block - mean) / scale
     return DigitClassifier.fit_selected(
         X_sel,
         np.repeat(np.arange(n_chunks), np.diff(bounds)),
@@ -141,7 +158,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
 
     def fit(self, X: Any, y: Any = None, progress: ProgressFn | None = None) -> ChunkedPlaceEncoder:
         del y
-        X = check_descriptors(X, min_rows=2, what="training descriptors")
+        X = check_route(X)
         if int(self.top_chunks) < 1:
             raise InvalidParameterError(f"top_chunks must be >= 1, got {self.top_chunks}")
         PhaseEncoder(**{k: getattr(self, k) for k in _ENCODER_PARAMS})._validate_params(

@@ -124,26 +124,40 @@ def _make_svm() -> object:
 def _fit_ridge(
     X: np.ndarray, y: np.ndarray, n: int, C: float, seed: int | None, threads: int = 1
 ) -> LinearModel:
-    """Minimise ``½||W||² + C/2·||XW + b − Y||²`` in closed form (BLAS threads its own)."""
+    """Minimise ``½||W||² + C/2·||XW + b − Y||²`` in closed form (BLAS threads its own).
+
+    The primal system is accumulated over row blocks, so a long route (a chunk classifier
+    over a million frames) never holds its centred copy or the one-hot targets whole."""
     del seed, threads
-    Y = np.zeros((X.shape[0], n))
-    Y[np.arange(X.shape[0]), y] = 1.0
+    n_rows, n_cols = X.shape
     x_mean = X.mean(axis=0)
-    y_mean = Y.mean(axis=0)
-    Xc = X - x_mean
-    Yc = Y - y_mean
+    y_mean = np.bincount(y, minlength=n) / n_rows
     lam = 1.0 / C
-    n_rows, n_cols = Xc.shape
     if n_cols <= n_rows:  # primal: (XᵀX + λI) W = XᵀY
-        A = Xc.T @ Xc
+        A = np.zeros((n_cols, n_cols))
+        B = np.zeros((n_cols, n))
+        for s in range(0, n_rows, _RIDGE_BLOCK):
+            Xc = X[s : s + _RIDGE_BLOCK] - x_mean
+            Yc = np.zeros((Xc.shape[0], n))
+            Yc[np.arange(Xc.shape[0]), y[s : s + _RIDGE_BLOCK]] = 1.0
+            Yc -= y_mean
+            A += Xc.T @ Xc
+            B += Xc.T @ Yc
         A[np.diag_indices_from(A)] += lam
-        W = _solve_psd(A, Xc.T @ Yc)
+        W = _solve_psd(A, B)
     else:  # dual: W = Xᵀ (XXᵀ + λI)⁻¹ Y
+        Xc = X - x_mean
+        Yc = np.zeros((n_rows, n))
+        Yc[np.arange(n_rows), y] = 1.0
+        Yc -= y_mean
         K = Xc @ Xc.T
         K[np.diag_indices_from(K)] += lam
         W = Xc.T @ _solve_psd(K, Yc)
     b = y_mean - x_mean @ W
     return W.T.copy(), b
+
+
+_RIDGE_BLOCK = 131072  # rows per block of the primal ridge system
 
 
 def _solve_psd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
