@@ -70,6 +70,11 @@ class Settings(BaseSettings):
         description="how long a micro-batch waits for more requests after its first (ms); "
         "requests queued while the previous batch computes join without waiting",
     )
+    serve_blas_threads: int = Field(
+        1, ge=0,
+        description="BLAS threads of the serving process (0 = the library's default); one "
+        "thread per query batch keeps the cores for the transports and other requests",
+    )
     log_level: str = Field("info", description="uvicorn / logging level")
     registry_url: str | None = Field(
         None,

@@ -67,13 +67,40 @@ async def _stream(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamReque
     return got
 
 
-async def _streams(target: str, batches: list[list[pb.StreamRequest]]) -> tuple[float, list[list[pb.StreamResponse]]]:
+async def _windowed(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamRequest], window: int,
+                    latency: list[float]) -> list[pb.StreamResponse]:  # fmt: skip
+    """A vehicle with at most ``window`` frames unanswered; per-frame client-side latency."""
+    free = asyncio.Semaphore(window)
+    sent: dict[int, float] = {}
+
+    async def feed() -> AsyncIterator[pb.StreamRequest]:
+        for item in items:
+            await free.acquire()
+            sent[item.sequence] = time.perf_counter()
+            yield item
+
+    got = []
+    async for r in stub.LocalizeStream(feed()):
+        latency.append(time.perf_counter() - sent[r.sequence])
+        free.release()
+        got.append(r)
+    if [r.sequence for r in got] != [q.sequence for q in items]:
+        raise AssertionError("stream answers out of order")
+    errors = [r.error.message for r in got if r.HasField("error")]
+    if errors:
+        raise AssertionError(f"{len(errors)} stream errors, e.g. {errors[0]}")
+    return got
+
+
+async def _streams(target: str, batches: list[list[pb.StreamRequest]],
+                   window: int = 16) -> tuple[float, list[list[pb.StreamResponse]], list[float]]:  # fmt: skip
     async with grpc.aio.insecure_channel(target) as channel:
         stub = pb_grpc.LocalizationStub(channel)
         await _stream(stub, batches[0][:20])  # warm-up
+        latency: list[float] = []
         start = time.perf_counter()
-        got = await asyncio.gather(*(_stream(stub, b) for b in batches))
-        return time.perf_counter() - start, list(got)
+        got = await asyncio.gather(*(_windowed(stub, b, window, latency) for b in batches))
+        return time.perf_counter() - start, list(got), latency
 
 
 async def _unary(target: str, Q: np.ndarray, n: int) -> dict[str, Any]:
@@ -89,24 +116,48 @@ async def _unary(target: str, Q: np.ndarray, n: int) -> dict[str, Any]:
     return {"client_ms": _pct(ms)}
 
 
-def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams: int) -> dict[str, Any]:
+async def _unary_concurrent(target: str, Q: np.ndarray, n: int, concurrency: int) -> dict[str, Any]:
+    """``concurrency`` callers, each sending unary requests one after another."""
+    async with grpc.aio.insecure_channel(target) as channel:
+        stub = pb_grpc.LocalizationStub(channel)
+        reqs = [pb.LocalizeRequest(map="bench", descriptor=_f32(Q[i % Q.shape[0]])) for i in range(n)]
+        ms: list[float] = []
+
+        async def caller(k: int) -> None:
+            for req in reqs[k::concurrency]:
+                start = time.perf_counter()
+                await stub.Localize(req)
+                ms.append((time.perf_counter() - start) * 1000)
+
+        await caller(0)
+        ms.clear()
+        start = time.perf_counter()
+        await asyncio.gather(*(caller(k) for k in range(concurrency)))
+        seconds = time.perf_counter() - start
+    return {"concurrency": concurrency, "requests": n, "req_per_s": n / seconds, "client_ms": _pct(ms)}
+
+
+def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams: int,
+                window: int) -> dict[str, Any]:  # fmt: skip
     per = frames // n_streams
     rows = [[(s * per + i) % Q.shape[0] for i in range(per)] for s in range(n_streams)]
     batches = [_requests(Q, r, "bench", f"vehicle-{s}") for s, r in enumerate(rows)]
-    seconds, got = asyncio.run(_streams(target, batches))
+    seconds, got, latency = asyncio.run(_streams(target, batches, window))
     index = np.array([a.index for g in got for a in g])
     truth = np.array([r % period for rr in rows for r in rr])
     return {"streams": n_streams, "frames": per * n_streams, "seconds": seconds,
-            "frames_per_s": per * n_streams / seconds,
+            "window_per_stream": window, "frames_per_s": per * n_streams / seconds,
+            "client_ms": _pct([1000 * t for t in latency]),
             "server_ms": _pct([a.latency_ms for g in got for a in g]),
+            "index": index.tolist(),
             "place_precision_at_5": float(np.mean(np.abs(index % period - truth) <= 5))}  # fmt: skip
 
 
 def _filtering(target: str, Q: np.ndarray, frames: int) -> dict[str, Any]:
     rows = list(range(min(frames, Q.shape[0])))
     batches = [_requests(Q, rows, "noisy", "filtered", True), _requests(Q, rows, "noisy", "raw")]
-    seconds_f, (filtered,) = asyncio.run(_streams(target, batches[:1]))
-    _, (raw,) = asyncio.run(_streams(target, batches[1:]))
+    seconds_f, (filtered,), _ = asyncio.run(_streams(target, batches[:1]))
+    _, (raw,), _ = asyncio.run(_streams(target, batches[1:]))
     truth = np.asarray(rows)
     out: dict[str, Any] = {"frames": len(rows), "filtered_frames_per_s": len(rows) / seconds_f}
     for name, answers in (("raw", raw), ("filtered", filtered)):
@@ -125,32 +176,58 @@ def _fit_publish(data_dir: Path, name: str, X: np.ndarray, params: dict[str, str
     return seconds
 
 
+def _measure(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarray, period: int,
+             frames: int, n_streams: int, window: int, rest_batch: int, batching: bool,
+             filtering: bool) -> dict[str, Any]:  # fmt: skip
+    grpc_port = free_port()
+    env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(grpc_port),
+           "GRIDPLACE_LOG_LEVEL": "warning", "GRIDPLACE_TRAIN_WORKERS": "1",
+           "GRIDPLACE_BATCHING": "true" if batching else "false"}  # fmt: skip
+    target = f"127.0.0.1:{grpc_port}"
+    out: dict[str, Any] = {"batching": batching}
+    with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
+        srv.wait_ready(120)
+        label = "micro-batched" if batching else "unbatched"
+        with console.status(f"measuring gRPC ({label})…"):
+            out["grpc_unary"] = asyncio.run(_unary(target, qry, 300))
+            out["grpc_unary_concurrent"] = asyncio.run(_unary_concurrent(target, qry, 2000, 32))
+            out["grpc_stream_1"] = _throughput(target, qry, period, frames, 1, window)
+            out[f"grpc_streams_{n_streams}"] = _throughput(target, qry, period, frames, n_streams, window)
+            if filtering:
+                out["sequence_filter"] = _filtering(target, noisy_q, frames)
+        with console.status(f"measuring REST on the same server ({label})…"):
+            rest = _batch(c, qry[:frames], rest_batch)
+            rest.pop("index")
+            out["rest_batch_binary"] = rest
+            single = _single(c, qry, 300, as_b64=True)
+            single.pop("answers")
+            out["rest_single_b64"] = single
+    return out
+
+
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
-                   noisy_d: int, params: dict[str, str], out: Path) -> dict[str, Any]:  # fmt: skip
+                   noisy_d: int, params: dict[str, str], out: Path, window: int = 16,
+                   compare: bool = True) -> dict[str, Any]:  # fmt: skip
     ref, qry, period, label = bench_data(n_frames)
     noisy = smooth_route(n_frames, noisy_d, query_noise=noise, seed=1)  # SYNTHETIC
     token = secrets.token_hex(16)
-    grpc_port = free_port()
-    env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(grpc_port),
-           "GRIDPLACE_LOG_LEVEL": "warning", "GRIDPLACE_TRAIN_WORKERS": "1"}  # fmt: skip
-    target = f"127.0.0.1:{grpc_port}"
     with tempfile.TemporaryDirectory(prefix="gridplace-bench-grpc-") as tmp:
         data_dir = Path(tmp)
         with console.status(f"fitting the {n_frames}-frame maps…"):
             fit_s = _fit_publish(data_dir, "bench", ref, params)
             _fit_publish(data_dir, "noisy", noisy.reference, params)
-        with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
-            srv.wait_ready(120)
-            with console.status("measuring gRPC…"):
-                unary = asyncio.run(_unary(target, qry, 300))
-                one = _throughput(target, qry, period, frames, 1)
-                many = _throughput(target, qry, period, frames, n_streams)
-                filtering = _filtering(target, noisy.query, frames)
-            with console.status("measuring REST on the same server…"):
-                rest_batch_out = _batch(c, qry[:frames], rest_batch)
-                rest_batch_out.pop("index")
-                rest_single = _single(c, qry, 300, as_b64=True)
-                rest_single.pop("answers")
+        runs = [_measure(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
+                         rest_batch, True, True)]  # fmt: skip
+        if compare:
+            runs.append(_measure(data_dir, token, qry, noisy.query, period, frames, n_streams,
+                                 window, rest_batch, False, False))  # fmt: skip
+    key = f"grpc_streams_{n_streams}"
+    same = None
+    if compare:
+        same = runs[0][key]["index"] == runs[1][key]["index"]
+    for r in runs:
+        for k in ("grpc_stream_1", key):
+            r[k].pop("index")
     report: dict[str, Any] = {
         "benchmark": "grpc",
         "date": datetime.now(UTC).isoformat(),
@@ -159,14 +236,12 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         "filter_data": {"label": f"{noisy.label}, query_noise={noise}", "N": n_frames, "d": noisy_d},
         "params": params,
         "fit_seconds": fit_s,
-        "grpc_unary": unary,
-        "grpc_stream_1": one,
-        f"grpc_streams_{n_streams}": many,
-        "rest_batch_binary": rest_batch_out,
-        "rest_single_b64": rest_single,
-        "sequence_filter": filtering,
+        **runs[0],
+        "unbatched": runs[1] if compare else None,
+        "batched_answers_equal_unbatched": same,
         "transport": "loopback, plaintext HTTP/2 (grpc.aio client) and HTTP/1.1 (httpx); "
-                     "client and server on the same cores",
+                     "client and server on the same cores; stream latency measured by the "
+                     f"client with at most {window} frames in flight per stream",
     }
     _print(report, n_streams)
     out.write_text(json.dumps(report, indent=2))
@@ -176,21 +251,35 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
 
 def _print(r: dict[str, Any], n_streams: int) -> None:
     console.print(f"[bold]map:[/] {r['data']['label']} (N={r['data']['N']}, d={r['data']['d']})")
-    t = Table(title="gridplace serve — gRPC beside REST, loopback")
+    t = Table(title="gridplace serve — gRPC beside REST, loopback (micro-batched | unbatched)")
     for col in ("measure", "throughput", "p50 ms", "p99 ms"):
         t.add_column(col)
-    u = r["grpc_unary"]["client_ms"]
-    t.add_row("gRPC unary Localize (sequential)", f"{1000 / u['mean']:.0f} req/s", f"{u['p50']:.2f}", f"{u['p99']:.2f}")
-    for key, name in (("grpc_stream_1", "gRPC LocalizeStream, 1 stream"),
-                      (f"grpc_streams_{n_streams}", f"gRPC LocalizeStream, {n_streams} streams")):  # fmt: skip
-        s = r[key]
-        t.add_row(name, f"{s['frames_per_s']:.0f} frames/s", f"{s['server_ms']['p50']:.2f} (server)",
-                  f"{s['server_ms']['p99']:.2f} (server)")  # fmt: skip
-    b = r["rest_batch_binary"]
-    t.add_row(f"REST /v1/localize/batch binary ×{b['batch_size']}", f"{b['queries_per_s']:.0f} q/s", "", "")
-    s = r["rest_single_b64"]["client_ms"]
-    t.add_row("REST /v1/localize single base64", f"{1000 / s['mean']:.0f} req/s", f"{s['p50']:.2f}", f"{s['p99']:.2f}")
+    runs = [r] + ([r["unbatched"]] if r.get("unbatched") else [])
+
+    def cells(get: Any) -> list[str]:
+        return [" | ".join(get(x)[i] for x in runs) for i in range(3)]
+
+    t.add_row("gRPC unary Localize (sequential)", *cells(lambda x: (
+        f"{1000 / x['grpc_unary']['client_ms']['mean']:.0f} req/s",
+        f"{x['grpc_unary']['client_ms']['p50']:.2f}", f"{x['grpc_unary']['client_ms']['p99']:.2f}")))
+    t.add_row("gRPC unary Localize, 32 concurrent callers", *cells(lambda x: (
+        f"{x['grpc_unary_concurrent']['req_per_s']:.0f} req/s",
+        f"{x['grpc_unary_concurrent']['client_ms']['p50']:.2f}",
+        f"{x['grpc_unary_concurrent']['client_ms']['p99']:.2f}")))
+    for key, name in (("grpc_stream_1", "gRPC LocalizeStream, 1 stream (client ms)"),
+                      (f"grpc_streams_{n_streams}", f"gRPC LocalizeStream, {n_streams} streams (client ms)")):  # fmt: skip
+        t.add_row(name, *cells(lambda x, key=key: (
+            f"{x[key]['frames_per_s']:.0f} frames/s", f"{x[key]['client_ms']['p50']:.2f}",
+            f"{x[key]['client_ms']['p99']:.2f}")))
+    t.add_row(f"REST /v1/localize/batch binary ×{r['rest_batch_binary']['batch_size']}", *cells(
+        lambda x: (f"{x['rest_batch_binary']['queries_per_s']:.0f} q/s", "", "")))
+    t.add_row("REST /v1/localize single base64", *cells(lambda x: (
+        f"{1000 / x['rest_single_b64']['client_ms']['mean']:.0f} req/s",
+        f"{x['rest_single_b64']['client_ms']['p50']:.2f}", f"{x['rest_single_b64']['client_ms']['p99']:.2f}")))
     console.print(t)
+    if r.get("batched_answers_equal_unbatched") is not None:
+        console.print(f"{n_streams}-stream answers identical batched and unbatched: "
+                      f"{r['batched_answers_equal_unbatched']}")  # fmt: skip
     f = r["sequence_filter"]
     console.print(f"[bold]sequence filter[/] on {r['filter_data']['label']} (N={r['filter_data']['N']}, "
                   f"d={r['filter_data']['d']}), {f['frames']} frames along the route:")  # fmt: skip

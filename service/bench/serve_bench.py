@@ -26,11 +26,13 @@ from typing import Any
 
 import httpx
 import numpy as np
+import orjson
 from rich.console import Console
 from rich.table import Table
 
 from service.api.process import ServerProcess
 from service.bench.data import nordland
+from service.encoding.decoding import reference_localize
 from service.encoding.synthetic import smooth_route
 from service.errors import UnavailableError
 
@@ -82,18 +84,21 @@ def _train(c: httpx.Client, auth: dict[str, str], X: np.ndarray, params: dict[st
 
 
 def _single(c: httpx.Client, Q: np.ndarray, n: int, as_b64: bool) -> dict[str, Any]:
+    """Sequential single requests; the client's time includes encoding the JSON body (orjson:
+    the stdlib ``json`` alone takes ~0.8 ms for 2,048 floats, see ``client_encode_ms``)."""
     client_ms: list[float] = []
     server_ms: list[float] = []
     answers: list[int] = []
+    headers = {"Content-Type": "application/json"}
     for i in range(n + 20):
         q = Q[i % Q.shape[0]]
+        start = time.perf_counter()
         body: dict[str, Any] = {"map": "bench"}
         if as_b64:
             body["descriptor_b64"] = base64.b64encode(q.astype("<f4").tobytes()).decode()
         else:
             body["descriptor"] = q.tolist()
-        start = time.perf_counter()
-        r = c.post("/v1/localize", json=body)
+        r = c.post("/v1/localize", content=orjson.dumps(body), headers=headers)
         elapsed = (time.perf_counter() - start) * 1000
         r.raise_for_status()
         if i >= 20:  # warm-up excluded
@@ -118,22 +123,46 @@ def _batch(c: httpx.Client, Q: np.ndarray, batch: int) -> dict[str, Any]:
             "queries_per_s": Q.shape[0] / seconds, "index": index}  # fmt: skip
 
 
-def _in_process(model: Any, Q: np.ndarray, n_single: int, batch: int) -> dict[str, Any]:
+def _in_process(localize: Any, Q: np.ndarray, n_single: int, batch: int) -> dict[str, Any]:
     ms = []
     for i in range(n_single + 20):
         start = time.perf_counter()
-        model.localize(Q[i % Q.shape[0]][None, :])
+        localize(Q[i % Q.shape[0]][None, :])
         if i >= 20:
             ms.append((time.perf_counter() - start) * 1000)
     start = time.perf_counter()
     for s in range(0, Q.shape[0], batch):
-        model.localize(Q[s : s + batch])
+        localize(Q[s : s + batch])
     seconds = time.perf_counter() - start
     return {"single_ms": _pct(ms), "batch_queries_per_s": Q.shape[0] / seconds}
 
 
+def _client_encode(Q: np.ndarray) -> dict[str, float]:
+    """What encoding one JSON-floats body costs a client (stdlib json vs orjson), in ms."""
+    body = {"map": "bench", "descriptor": Q[0].tolist()}
+    out = {}
+    for name, dumps in (("json", lambda b: json.dumps(b).encode()), ("orjson", orjson.dumps)):
+        start = time.perf_counter()
+        for _ in range(200):
+            dumps(body)
+        out[name] = (time.perf_counter() - start) / 200 * 1000
+    return out
+
+
+def _rest(data_dir: Path, env: dict[str, str], qry: np.ndarray, Qb: np.ndarray, n_single: int,
+          batch: int, batching: bool) -> dict[str, Any]:  # fmt: skip
+    env = {**env, "GRIDPLACE_BATCHING": "true" if batching else "false"}
+    with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
+        srv.wait_ready(120)
+        single_json = _single(c, qry, n_single, as_b64=False)
+        single_b64 = _single(c, qry, n_single, as_b64=True)
+        batched = _batch(c, Qb, batch)
+    return {"batching": batching, "single_json": single_json, "single_b64": single_b64,
+            "batch_binary": batched}  # fmt: skip
+
+
 def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: int,
-                    params: dict[str, str], out: Path) -> dict[str, Any]:  # fmt: skip
+                    params: dict[str, str], out: Path, compare: bool = True) -> dict[str, Any]:  # fmt: skip
     ref, qry, period, label = bench_data(n_frames)
     token = secrets.token_hex(16)
     auth = {"Authorization": f"Bearer {token}"}
@@ -147,17 +176,25 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
             job = _train(c, auth, ref, params)
             srv.wait_ready(120)
             version = c.get("/v1/maps/bench/versions/1", headers=auth).json()
-            single_json = _single(c, qry, n_single, as_b64=False)
-            single_b64 = _single(c, qry, n_single, as_b64=True)
-            batched = _batch(c, Qb, batch)
+        runs = [_rest(data_dir, env, qry, Qb, n_single, batch, True)]
+        if compare:
+            runs.append(_rest(data_dir, env, qry, Qb, n_single, batch, False))
         from service.registry import Registry
 
         model = Registry(data_dir).load_model("bench", 1)
-        local = _in_process(model, qry, n_single, batch)
+        local = _in_process(model.localize, qry, n_single, batch)
+        reference = _in_process(lambda Q: reference_localize(model, Q), qry, n_single, batch)
     truth = np.arange(Qb.shape[0]) % period
-    place_p5 = float(np.mean(np.abs(np.asarray(batched.pop("index")) % period - truth) <= 5))
-    for s in (single_json, single_b64):
-        s.pop("answers")
+    main = runs[0]
+    place_p5 = float(np.mean(np.abs(np.asarray(main["batch_binary"]["index"]) % period - truth) <= 5))
+    same = None
+    if compare:
+        same = (main["single_json"]["answers"] == runs[1]["single_json"]["answers"]
+                and main["batch_binary"]["index"] == runs[1]["batch_binary"]["index"])  # fmt: skip
+    for r in runs:
+        for key in ("single_json", "single_b64"):
+            r[key].pop("answers")
+        r["batch_binary"].pop("index")
     report: dict[str, Any] = {
         "benchmark": "serve",
         "date": datetime.now(UTC).isoformat(),
@@ -170,12 +207,15 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
             "artifact_bytes": version["artifact_bytes"],
         },
         "training": {"upload_to_done_seconds": job["upload_to_done_seconds"], "timings": job["timings"]},
-        "single_json": single_json,
-        "single_b64": single_b64,
-        "batch_binary": batched,
+        **{k: v for k, v in main.items() if k != "batching"},
+        "unbatched": runs[1] if compare else None,
+        "batched_answers_equal_unbatched": same,
         "in_process": local,
+        "in_process_reference_decoder": reference,
+        "client_encode_ms": _client_encode(qry),
         "place_precision_at_5_winter_queries": place_p5,
-        "transport": "HTTP/1.1 keep-alive on loopback, one client, httpx",
+        "transport": "HTTP/1.1 keep-alive on loopback, one client, httpx; JSON bodies encoded "
+                     "with orjson inside the timed request",
     }
     _print(report)
     out.write_text(json.dumps(report, indent=2))
@@ -185,24 +225,32 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
 
 def _print(r: dict[str, Any]) -> None:
     console.print(f"[bold]data:[/] {r['data']['label']} (N={r['data']['N']}, d={r['data']['d']})")
-    t = Table(title="gridplace serve — loopback")
+    runs = [r] + ([r["unbatched"]] if r.get("unbatched") else [])
+    t = Table(title="gridplace serve — loopback (micro-batched | unbatched)")
     for col in ("measure", "p50", "p99", "throughput"):
         t.add_column(col)
     for name, key in (("single /localize JSON floats", "single_json"),
                       ("single /localize base64", "single_b64")):  # fmt: skip
-        s = r[key]
-        t.add_row(f"{name}: client ms", f"{s['client_ms']['p50']:.2f}", f"{s['client_ms']['p99']:.2f}",
-                  f"{1000 / s['client_ms']['mean']:.0f} req/s")  # fmt: skip
-        t.add_row(f"{name}: server ms", f"{s['server_ms']['p50']:.2f}", f"{s['server_ms']['p99']:.2f}", "")
-    loc = r["in_process"]
-    t.add_row("in-process encoder, 1 descriptor: ms", f"{loc['single_ms']['p50']:.2f}",
-              f"{loc['single_ms']['p99']:.2f}", f"{1000 / loc['single_ms']['mean']:.0f} q/s")  # fmt: skip
+        for side in ("client", "server"):
+            t.add_row(f"{name}: {side} ms",
+                      " | ".join(f"{x[key][f'{side}_ms']['p50']:.2f}" for x in runs),
+                      " | ".join(f"{x[key][f'{side}_ms']['p99']:.2f}" for x in runs),
+                      " | ".join(f"{1000 / x[key][f'{side}_ms']['mean']:.0f} req/s" for x in runs)
+                      if side == "client" else "")  # fmt: skip
     b = r["batch_binary"]
     t.add_row(f"batch /localize/batch binary ×{b['batch_size']}", "", "",
-              f"{b['queries_per_s']:.0f} q/s")  # fmt: skip
-    t.add_row(f"in-process encoder batch ×{b['batch_size']}", "", "",
-              f"{loc['batch_queries_per_s']:.0f} q/s")  # fmt: skip
+              " | ".join(f"{x['batch_binary']['queries_per_s']:.0f} q/s" for x in runs))  # fmt: skip
+    for name, key in (("in-process fast path", "in_process"),
+                      ("in-process reference decoder", "in_process_reference_decoder")):  # fmt: skip
+        loc = r[key]
+        t.add_row(f"{name}, 1 descriptor: ms", f"{loc['single_ms']['p50']:.3f}",
+                  f"{loc['single_ms']['p99']:.3f}", f"{1000 / loc['single_ms']['mean']:.0f} q/s")  # fmt: skip
+        t.add_row(f"{name}, batch ×{b['batch_size']}", "", "", f"{loc['batch_queries_per_s']:.0f} q/s")
     console.print(t)
+    enc = r["client_encode_ms"]
+    console.print(f"client JSON encoding of one descriptor: json {enc['json']:.2f} ms, orjson "
+                  f"{enc['orjson']:.2f} ms; answers identical batched and unbatched: "
+                  f"{r['batched_answers_equal_unbatched']}")  # fmt: skip
     p5 = r["place_precision_at_5_winter_queries"]
     console.print(f"place precision@5 of the batch answers (winter queries, cross-season): {p5:.3f}; "
                   f"training (upload → done): {r['training']['upload_to_done_seconds']:.1f} s")  # fmt: skip

@@ -51,13 +51,15 @@ def bench_serve(
     trainer: Annotated[str, typer.Option()] = "ridge",
     patterns: Annotated[int, typer.Option(help="k")] = 2,
     chunks: Annotated[int, typer.Option(help="n_chunks")] = 1,
+    compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-serve.json"),
 ) -> None:
-    """/localize p50/p99 latency and batch throughput of a real server on loopback (10k map)."""
+    """/localize p50/p99 latency and batch throughput of a real server on loopback (10k map),
+    micro-batched and not, beside the in-process fast path and reference decoder."""
     from service.bench.serve_bench import run_serve_bench
 
     params = {"trainer": trainer, "n_patterns": str(patterns), "n_chunks": str(chunks)}
-    run_serve_bench(n_frames, single, batch_queries, batch_size, params, out)
+    run_serve_bench(n_frames, single, batch_queries, batch_size, params, out, compare)
 
 
 @app.command("grpc")
@@ -70,13 +72,17 @@ def bench_grpc(
     noisy_d: Annotated[int, typer.Option(help="descriptor size of the SYNTHETIC filter route")] = 256,
     trainer: Annotated[str, typer.Option()] = "ridge",
     patterns: Annotated[int, typer.Option(help="k")] = 2,
+    window: Annotated[int, typer.Option(help="frames in flight per stream")] = 16,
+    compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-grpc.json"),
 ) -> None:
-    """gRPC frames/s on 1 and N streams beside REST, and what sequence filtering does to precision."""
+    """gRPC frames/s on 1 and N streams beside REST, micro-batched and not, and what sequence
+    filtering does to precision."""
     from service.bench.grpc_bench import run_grpc_bench
 
     params = {"trainer": trainer, "n_patterns": str(patterns)}
-    run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out)
+    run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
+                   window, compare)  # fmt: skip
 
 
 @app.command("scale")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from service.core.batching import MicroBatcher
 from service.core.localization import LocalizationService
@@ -33,10 +33,15 @@ class ServiceContext:
     metrics: ServiceMetrics
     service: LocalizationService
     batcher: MicroBatcher | None = None  # None: localize inline (``batching`` off)
+    _blas: Any = None
 
     def start(self) -> None:
         """Start the hot-swap poller (its first pass loads every active version) and the
-        micro-batcher."""
+        micro-batcher, with the serving BLAS thread count."""
+        if self.settings.serve_blas_threads and self._blas is None:
+            from threadpoolctl import threadpool_limits
+
+            self._blas = threadpool_limits(self.settings.serve_blas_threads, user_api="blas")
         self.store.start()
         if self.batcher is not None:
             self.batcher.start()
@@ -45,6 +50,9 @@ class ServiceContext:
         if self.batcher is not None:
             self.batcher.stop()
         self.store.stop()
+        if self._blas is not None:
+            self._blas.restore_original_limits()
+            self._blas = None
         try:
             self.backend.close()
         except Exception:
