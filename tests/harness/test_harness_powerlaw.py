@@ -81,3 +81,27 @@ def test_summarize_keeps_the_cheapest_setting_reaching_each_target() -> None:
     assert ident["methods"]["gridplace"]["fit_paper"]["a"] == pytest.approx(0.5)
     assert [b["params"]["rho"] for b in cross["methods"]["gridplace"]["best"]] == [1.0] * 3
     assert cross["target"] == 0.5 and cross["tolerance"] == 5
+
+
+def test_the_papers_form_gives_exactly_linear_storage_about_one_half() -> None:
+    """Exact NN on 2,048 float64 columns (8·2048·N bytes), N = 100…10,000: c·N^a says 1,
+    the paper's MB = N^a form says ≈ 0.53."""
+    from service.harness.powerlaw import fit_paper_form
+
+    n = np.arange(100, 10_001, 100, dtype=np.float64)
+    storage = 8 * 2048 * n
+    assert fit_power_law(n, storage).a == pytest.approx(1.0, abs=1e-9)
+    form = fit_paper_form(n, storage)
+    assert form.a == pytest.approx(0.533, abs=0.01)
+    assert form.n_points == n.size and form.rmse_mb > 0
+
+
+@settings(max_examples=30, deadline=None)
+@given(a=st.floats(0.1, 1.5))
+def test_the_papers_form_recovers_its_own_curves(a: float) -> None:
+    from service.harness.powerlaw import MB, fit_paper_form
+
+    x = np.geomspace(100, 1_000_000, 8)
+    fit = fit_paper_form(x, MB * x**a)
+    assert fit.a == pytest.approx(a, abs=1e-6)
+    assert fit.predict_bytes(1e4) == pytest.approx(MB * 1e4**a, rel=1e-5)
