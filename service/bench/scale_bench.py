@@ -22,6 +22,7 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import queue
 import tempfile
 import time
 from datetime import UTC, datetime
@@ -144,24 +145,35 @@ def _exact_child(route: str, frames: int, n_queries: int, noise: float, out: Any
              "stored_bytes_measured": int(nn.footprint().actual_bytes)})  # fmt: skip
 
 
-def _in_child(target: Any, *args: Any) -> dict[str, Any]:
+def _in_child(target: Any, *args: Any, isolate: bool = True) -> dict[str, Any]:
+    """Run ``target(*args, queue)`` in a fresh (spawned) process and return what it puts
+    (``isolate=False``: in this process, for a quick check of the figures' plumbing)."""
+    if not isolate:
+        q: queue.SimpleQueue[dict[str, Any]] = queue.SimpleQueue()
+        target(*args, q)
+        return q.get_nowait()
     ctx = mp.get_context("spawn")
-    q = ctx.Queue()
-    proc = ctx.Process(target=target, args=(*args, q))
+    mq = ctx.Queue()
+    proc = ctx.Process(target=target, args=(*args, mq))
     proc.start()
     try:
-        result = q.get(timeout=7200)
+        while True:
+            try:
+                return mq.get(timeout=1.0)  # type: ignore[no-any-return]
+            except queue.Empty:
+                if not proc.is_alive():
+                    raise RuntimeError(
+                        f"{target.__name__} exited with {proc.exitcode} without a result"
+                    ) from None
     finally:
         proc.join(60)
-    if proc.exitcode not in (0, None):
-        raise RuntimeError(f"{target.__name__} exited with {proc.exitcode}")
-    return result  # type: ignore[no-any-return]
 
 
 # -- the benchmark ---------------------------------------------------------------------
 def run_scale_bench(sizes: list[int], d: int, frames_per_chunk: int, region_length: int,
                     noise: float, n_queries: int, n_single: int, batch: int, exact_frames: int,
-                    trainer: str, out: Path, work_dir: Path | None = None) -> dict[str, Any]:  # fmt: skip
+                    trainer: str, out: Path, work_dir: Path | None = None,
+                    figure: Path | None = None, isolate: bool = True) -> dict[str, Any]:  # fmt: skip
     points = []
     for n in sizes:
         with tempfile.TemporaryDirectory(prefix="gridplace-scale-", dir=work_dir) as tmp:
@@ -174,11 +186,13 @@ def run_scale_bench(sizes: list[int], d: int, frames_per_chunk: int, region_leng
             params = {"trainer": trainer, "n_patterns": 2, "rho": 0.5,
                       "n_chunks": max(1, n // frames_per_chunk), "n_jobs": -1}  # fmt: skip
             with console.status(f"N={n:,}: training {params['n_chunks']} chunks on all cores…"):
-                train = _in_child(_train_child, route, registry, params)
+                train = _in_child(_train_child, route, registry, params, isolate=isolate)
             with console.status(f"N={n:,}: loading and querying…"):
-                serve = _in_child(_serve_child, route, registry, n_queries, n_single, batch, noise)
+                serve = _in_child(_serve_child, route, registry, n_queries, n_single, batch, noise,
+                                  isolate=isolate)  # fmt: skip
             with console.status(f"N={n:,}: exact NN…"):
-                exact = _in_child(_exact_child, route, exact_frames, n_queries, noise)
+                exact = _in_child(_exact_child, route, exact_frames, n_queries, noise,
+                                  isolate=isolate)  # fmt: skip
         scale = n / exact["frames_measured"]
         exact["extrapolated"] = scale > 1
         exact["single_s_at_N"] = exact["single"]["cpu_s"] * scale
@@ -198,8 +212,39 @@ def run_scale_bench(sizes: list[int], d: int, frames_per_chunk: int, region_leng
                  "exact_frames frames and scaled linearly to N where N is larger",
     }  # fmt: skip
     out.write_text(json.dumps(report, indent=2))
-    console.print(f"wrote {out}")
+    if figure is not None:
+        plot_scale(report, figure)
+    console.print(f"wrote {out}" + (f" and {figure}" if figure else ""))
     return report
+
+
+def plot_scale(report: dict[str, Any], path: Path) -> None:
+    """Query time against N: gridplace (fast path and reference decoder) and exact NN."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts = report["points"]
+    ns = [p["N"] for p in pts]
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    series = (
+        ("gridplace, single query", [p["serve"]["single"]["cpu_s"] for p in pts], "-o"),
+        ("gridplace, batch (per query)", [p["serve"]["batch"]["cpu_s"] for p in pts], "-s"),
+        ("reference decoder, single", [p["serve"]["single_reference"]["cpu_s"] for p in pts], ":o"),
+        ("exact NN, single query", [p["exact_nn"]["single_s_at_N"] for p in pts], "--o"),
+        ("exact NN, batch (per query)", [p["exact_nn"]["batch_s_at_N"] for p in pts], "--s"),
+    )  # fmt: skip
+    for label, secs, style in series:
+        ax.plot(ns, np.asarray(secs) * 1e6, style, label=label)
+    ax.set(xscale="log", yscale="log", xlabel="route length N (frames)",
+           ylabel="CPU time per query (µs)",
+           title=f"Query time against N (SYNTHETIC, d={pts[0]['d']})")  # fmt: skip
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _mb(b: float) -> str:

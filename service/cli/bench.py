@@ -98,6 +98,7 @@ def bench_scale(
     exact_frames: Annotated[int, typer.Option(help="frames exact NN is measured on")] = 100_000,
     trainer: Annotated[str, typer.Option()] = "ridge",
     work_dir: Annotated[Path | None, typer.Option(help="where the route files go (temporary)")] = None,
+    figure: Annotated[Path | None, typer.Option(help="PNG of query time against N")] = Path("query-time.png"),
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale.json"),
 ) -> None:
     """Train and serve SYNTHETIC maps up to 1M frames: time, peak RSS, artifact, load, latency,
@@ -105,7 +106,31 @@ def bench_scale(
     from service.bench.scale_bench import run_scale_bench
 
     run_scale_bench([int(s) for s in sizes.split(",")], n_features, frames_per_chunk, region_length,
-                    query_noise, queries, single, batch, exact_frames, trainer, out, work_dir)  # fmt: skip
+                    query_noise, queries, single, batch, exact_frames, trainer, out, work_dir,
+                    figure)  # fmt: skip
+
+
+@app.command("growth")
+def bench_growth(
+    sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
+    n_features: Annotated[int, typer.Option("--d", help="descriptor size d")] = 512,
+    region_length: Annotated[int, typer.Option(help="frames per regional scenery change")] = 2000,
+    query_noise: Annotated[float, typer.Option(help="noise of the SYNTHETIC queries")] = 0.3,
+    queries: Annotated[int, typer.Option(help="noisy queries per N")] = 1000,
+    tolerance: Annotated[int, typer.Option(help="precision within ± frames")] = 5,
+    target: Annotated[float, typer.Option(help="precision the cheapest setting must reach")] = 0.4,
+    baseline_frames: Annotated[int, typer.Option(help="largest N exact NN and PQ are trained at")] = 100_000,
+    trainer: Annotated[str, typer.Option()] = "ridge",
+    work_dir: Annotated[Path | None, typer.Option(help="where the route file goes (temporary)")] = None,
+    figure: Annotated[Path | None, typer.Option(help="PNG of storage and precision against N")] = Path("growth.png"),
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-growth.json"),
+) -> None:
+    """Storage and precision against N up to 1M SYNTHETIC frames for fixed settings and a fixed
+    precision target, beside exact NN and PQ, with both power-law fits."""
+    from service.bench.growth_bench import run_growth_bench
+
+    run_growth_bench([int(s) for s in sizes.split(",")], n_features, region_length, query_noise,
+                     queries, tolerance, target, baseline_frames, trainer, out, figure, work_dir)  # fmt: skip
 
 
 from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments)
