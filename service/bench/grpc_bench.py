@@ -15,6 +15,7 @@ Client and server share the machine's cores; the client builds every message bef
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import platform
@@ -113,7 +114,7 @@ async def _unary(target: str, Q: np.ndarray, n: int) -> dict[str, Any]:
             await stub.Localize(req)
             if i >= 20:
                 ms.append((time.perf_counter() - start) * 1000)
-    return {"client_ms": _pct(ms)}
+    return {"client_ms": _pct(ms), "client_raw": ms}
 
 
 async def _unary_concurrent(target: str, Q: np.ndarray, n: int, concurrency: int) -> dict[str, Any]:
@@ -134,7 +135,8 @@ async def _unary_concurrent(target: str, Q: np.ndarray, n: int, concurrency: int
         start = time.perf_counter()
         await asyncio.gather(*(caller(k) for k in range(concurrency)))
         seconds = time.perf_counter() - start
-    return {"concurrency": concurrency, "requests": n, "req_per_s": n / seconds, "client_ms": _pct(ms)}
+    return {"concurrency": concurrency, "requests": n, "seconds": seconds, "req_per_s": n / seconds,
+            "client_ms": _pct(ms), "client_raw": ms}  # fmt: skip
 
 
 def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams: int,
@@ -148,6 +150,7 @@ def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams:
     return {"streams": n_streams, "frames": per * n_streams, "seconds": seconds,
             "window_per_stream": window, "frames_per_s": per * n_streams / seconds,
             "client_ms": _pct([1000 * t for t in latency]),
+            "client_raw": [1000 * t for t in latency],
             "server_ms": _pct([a.latency_ms for g in got for a in g]),
             "index": index.tolist(),
             "place_precision_at_5": float(np.mean(np.abs(index % period - truth) <= 5))}  # fmt: skip
@@ -176,33 +179,74 @@ def _fit_publish(data_dir: Path, name: str, X: np.ndarray, params: dict[str, str
     return seconds
 
 
-def _measure(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarray, period: int,
-             frames: int, n_streams: int, window: int, rest_batch: int, batching: bool,
-             filtering: bool) -> dict[str, Any]:  # fmt: skip
-    grpc_port = free_port()
-    env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(grpc_port),
-           "GRIDPLACE_LOG_LEVEL": "warning", "GRIDPLACE_TRAIN_WORKERS": "1",
-           "GRIDPLACE_BATCHING": "true" if batching else "false"}  # fmt: skip
-    target = f"127.0.0.1:{grpc_port}"
-    out: dict[str, Any] = {"batching": batching}
-    with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
-        srv.wait_ready(120)
-        label = "micro-batched" if batching else "unbatched"
-        with console.status(f"measuring gRPC ({label})…"):
-            out["grpc_unary"] = asyncio.run(_unary(target, qry, 300))
-            out["grpc_unary_concurrent"] = asyncio.run(_unary_concurrent(target, qry, 2000, 32))
-            out["grpc_stream_1"] = _throughput(target, qry, period, frames, 1, window)
-            out[f"grpc_streams_{n_streams}"] = _throughput(target, qry, period, frames, n_streams, window)
-            if filtering:
-                out["sequence_filter"] = _filtering(target, noisy_q, frames)
-        with console.status(f"measuring REST on the same server ({label})…"):
-            rest = _batch(c, qry[:frames], rest_batch)
-            rest.pop("index")
-            out["rest_batch_binary"] = rest
-            single = _single(c, qry, 300, as_b64=True)
-            single.pop("answers")
-            out["rest_single_b64"] = single
+def _merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """One figure from alternating rounds: rates over the summed time, percentiles over all
+    samples."""
+    out = dict(parts[-1])
+    if "frames_per_s" in out:
+        frames, seconds = sum(p["frames"] for p in parts), sum(p["seconds"] for p in parts)
+        out.update(frames=frames, seconds=seconds, frames_per_s=frames / seconds,
+                   index=[i for p in parts for i in p["index"]])  # fmt: skip
+    if "req_per_s" in out:
+        n, seconds = sum(p["requests"] for p in parts), sum(p["seconds"] for p in parts)
+        out.update(requests=n, seconds=seconds, req_per_s=n / seconds)
+    if "queries_per_s" in out:
+        n, seconds = sum(p["queries"] for p in parts), sum(p["seconds"] for p in parts)
+        out.update(queries=n, seconds=seconds, queries_per_s=n / seconds)
+    if "client_raw" in out:
+        out["client_ms"] = _pct([x for p in parts for x in p["client_raw"]])
+        out.pop("client_raw")
     return out
+
+
+def _round(target: str, c: httpx.Client, qry: np.ndarray, period: int, frames: int,
+           n_streams: int, window: int, rest_batch: int) -> dict[str, Any]:  # fmt: skip
+    out: dict[str, Any] = {
+        "grpc_unary": asyncio.run(_unary(target, qry, 100)),
+        "grpc_unary_concurrent": asyncio.run(_unary_concurrent(target, qry, 640, 32)),
+        "grpc_stream_1": _throughput(target, qry, period, frames, 1, window),
+        f"grpc_streams_{n_streams}": _throughput(target, qry, period, frames, n_streams, window),
+    }
+    rest = _batch(c, qry[:frames], rest_batch)
+    rest.pop("index")
+    out["rest_batch_binary"] = rest
+    single = _single(c, qry, 100, as_b64=True, raw=True)
+    out["rest_single_b64"] = {"client_raw": single["client_raw"], "client_ms": None}
+    return out
+
+
+def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarray, period: int,
+                 frames: int, n_streams: int, window: int, rest_batch: int, compare: bool,
+                 rounds: int = 3) -> list[dict[str, Any]]:  # fmt: skip
+    """The micro-batched server and (``compare``) one without batching, both up at once,
+    measured in alternating rounds so that both see the same load."""
+    modes = [True, False] if compare else [True]
+    with contextlib.ExitStack() as stack:
+        servers = []
+        for batching in modes:
+            port = free_port()
+            env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(port),
+                   "GRIDPLACE_LOG_LEVEL": "warning", "GRIDPLACE_TRAIN_WORKERS": "1",
+                   "GRIDPLACE_BATCHING": "true" if batching else "false"}  # fmt: skip
+            srv = stack.enter_context(ServerProcess(data_dir, env=env))
+            srv.wait_ready(120)
+            client = stack.enter_context(httpx.Client(base_url=srv.url, timeout=60))
+            servers.append((f"127.0.0.1:{port}", client))
+        rounds_out: list[list[dict[str, Any]]] = [[] for _ in modes]
+        per = max(n_streams, frames // rounds)
+        for k in range(rounds):
+            for (target, client), got in zip(servers, rounds_out, strict=True):
+                with console.status(f"round {k + 1}/{rounds}: measuring {target}…"):
+                    got.append(_round(target, client, qry, period, per, n_streams, window,
+                                      rest_batch))  # fmt: skip
+        with console.status("sequence filter through the micro-batched server…"):
+            filtering = _filtering(servers[0][0], noisy_q, frames)
+    runs = []
+    for batching, got in zip(modes, rounds_out, strict=True):
+        run = {"batching": batching, **{key: _merge([g[key] for g in got]) for key in got[0]}}
+        runs.append(run)
+    runs[0]["sequence_filter"] = filtering
+    return runs
 
 
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
@@ -216,11 +260,8 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         with console.status(f"fitting the {n_frames}-frame maps…"):
             fit_s = _fit_publish(data_dir, "bench", ref, params)
             _fit_publish(data_dir, "noisy", noisy.reference, params)
-        runs = [_measure(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
-                         rest_batch, True, True)]  # fmt: skip
-        if compare:
-            runs.append(_measure(data_dir, token, qry, noisy.query, period, frames, n_streams,
-                                 window, rest_batch, False, False))  # fmt: skip
+        runs = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
+                            rest_batch, compare)  # fmt: skip
     key = f"grpc_streams_{n_streams}"
     same = None
     if compare:

@@ -13,6 +13,7 @@ route when the Nordland files are not present. The output says which.
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 import json
 import os
@@ -20,6 +21,7 @@ import platform
 import secrets
 import tempfile
 import time
+from collections import defaultdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -83,7 +85,7 @@ def _train(c: httpx.Client, auth: dict[str, str], X: np.ndarray, params: dict[st
     return job  # type: ignore[no-any-return]
 
 
-def _single(c: httpx.Client, Q: np.ndarray, n: int, as_b64: bool) -> dict[str, Any]:
+def _single(c: httpx.Client, Q: np.ndarray, n: int, as_b64: bool, raw: bool = False) -> dict[str, Any]:
     """Sequential single requests; the client's time includes encoding the JSON body (orjson:
     the stdlib ``json`` alone takes ~0.8 ms for 2,048 floats, see ``client_encode_ms``)."""
     client_ms: list[float] = []
@@ -105,6 +107,8 @@ def _single(c: httpx.Client, Q: np.ndarray, n: int, as_b64: bool) -> dict[str, A
             client_ms.append(elapsed)
             server_ms.append(r.json()["latency_ms"])
             answers.append(r.json()["index"])
+    if raw:
+        return {"client_raw": client_ms, "server_raw": server_ms, "answers": answers}
     return {"client_ms": _pct(client_ms), "server_ms": _pct(server_ms), "answers": answers}
 
 
@@ -149,16 +153,39 @@ def _client_encode(Q: np.ndarray) -> dict[str, float]:
     return out
 
 
+def _merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """One figure from rounds of :func:`_single` or :func:`_batch`."""
+    if "queries_per_s" in parts[0]:
+        seconds = sum(p["seconds"] for p in parts)
+        queries = sum(p["queries"] for p in parts)
+        return {"batch_size": parts[0]["batch_size"], "queries": queries, "seconds": seconds,
+                "queries_per_s": queries / seconds, "index": [i for p in parts for i in p["index"]]}  # fmt: skip
+    return {"client_ms": _pct([x for p in parts for x in p["client_raw"]]),
+            "server_ms": _pct([x for p in parts for x in p["server_raw"]]),
+            "answers": [a for p in parts for a in p["answers"]]}  # fmt: skip
+
+
 def _rest(data_dir: Path, env: dict[str, str], qry: np.ndarray, Qb: np.ndarray, n_single: int,
-          batch: int, batching: bool) -> dict[str, Any]:  # fmt: skip
-    env = {**env, "GRIDPLACE_BATCHING": "true" if batching else "false"}
-    with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=60) as c:
-        srv.wait_ready(120)
-        single_json = _single(c, qry, n_single, as_b64=False)
-        single_b64 = _single(c, qry, n_single, as_b64=True)
-        batched = _batch(c, Qb, batch)
-    return {"batching": batching, "single_json": single_json, "single_b64": single_b64,
-            "batch_binary": batched}  # fmt: skip
+          batch: int, compare: bool, rounds: int = 5) -> list[dict[str, Any]]:  # fmt: skip
+    """The micro-batched server (and, with ``compare``, one without batching, up at the same
+    time): each measure runs in ``rounds`` alternating rounds, so both see the same load."""
+    modes = [True, False] if compare else [True]
+    with contextlib.ExitStack() as stack:
+        clients = []
+        for batching in modes:
+            srv = stack.enter_context(ServerProcess(
+                data_dir, env={**env, "GRIDPLACE_BATCHING": "true" if batching else "false"}))
+            srv.wait_ready(120)
+            clients.append(stack.enter_context(httpx.Client(base_url=srv.url, timeout=60)))
+        parts: list[dict[str, list[dict[str, Any]]]] = [defaultdict(list) for _ in modes]
+        per = max(1, n_single // rounds)
+        for _ in range(rounds):
+            for c, got in zip(clients, parts, strict=True):
+                got["single_json"].append(_single(c, qry, per, as_b64=False, raw=True))
+                got["single_b64"].append(_single(c, qry, per, as_b64=True, raw=True))
+                got["batch_binary"].append(_batch(c, Qb, batch))
+    return [{"batching": b, **{k: _merge(v) for k, v in got.items()}}
+            for b, got in zip(modes, parts, strict=True)]  # fmt: skip
 
 
 def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: int,
@@ -176,9 +203,7 @@ def run_serve_bench(n_frames: int, n_single: int, n_batch_queries: int, batch: i
             job = _train(c, auth, ref, params)
             srv.wait_ready(120)
             version = c.get("/v1/maps/bench/versions/1", headers=auth).json()
-        runs = [_rest(data_dir, env, qry, Qb, n_single, batch, True)]
-        if compare:
-            runs.append(_rest(data_dir, env, qry, Qb, n_single, batch, False))
+        runs = _rest(data_dir, env, qry, Qb, n_single, batch, compare)
         from service.registry import Registry
 
         model = Registry(data_dir).load_model("bench", 1)
