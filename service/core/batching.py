@@ -42,6 +42,10 @@ log = logging.getLogger("gridplace.batching")
 
 Prepare = Callable[[], "tuple[LoadedModel, np.ndarray]"]
 
+#: requests larger than this (bytes of descriptors) are computed on their own by the caller's
+#: pool: one bulk query must not hold up the small ones the batcher exists for
+MAX_BATCHED_BYTES = 64 * 1024
+
 
 @dataclass(eq=False)
 class _Item:

@@ -30,6 +30,7 @@ from typing import Any, NoReturn, TypeVar
 import grpc
 
 from service.api.auth import check_admin
+from service.core.batching import MAX_BATCHED_BYTES
 from service.core.context import ServiceContext
 from service.core.streams import FleetStream
 from service.encoding.sequence import SequenceConfig
@@ -112,7 +113,8 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
             _check_size(request.ByteSize(), self.workers.max_localize_bytes, "a Localize request",
                         "GRIDPLACE_MAX_PUBLIC_BODY_MB")  # fmt: skip
             batcher = self.ctx.batcher
-            if batcher is not None and request.WhichOneof("query") == "descriptor":
+            if (batcher is not None and request.WhichOneof("query") == "descriptor"
+                    and len(request.descriptor) <= MAX_BATCHED_BYTES):  # fmt: skip
                 result = await batcher.localize_bytes(request.map, request.descriptor,
                                                       request.dimension or None)  # fmt: skip
                 return messages.localize_response(result)
