@@ -39,6 +39,7 @@ from service.encoding.phases import index_to_labels, place_values
 Precision = Literal["float32", "float64"]
 _U32 = 2.0**-24  # unit roundoff of float32
 _SLACK = 1e-12  # relative slack for float64 rounding of the reference itself
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def _kappa(n: int) -> float:
@@ -165,6 +166,7 @@ class ServingPlan:
             self.chunk = DigitBlock.of(model.chunk_classifier_)
             self.top = min(int(model.top_chunks), len(self.phases))
         norm = getattr(model, "normalizer_", None)
+        self.normalizer = norm
         self.mean = None if norm is None else norm.mean.astype(np.float64)
         self.scale = None if norm is None else norm.scale.astype(np.float64)
         self.n_frames = int(self.bounds[-1])
@@ -185,12 +187,19 @@ class ServingPlan:
 
     # -- helpers --------------------------------------------------------------------
     def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
-        """Z-scores computed in float64 exactly as the model's normaliser does (``dtype``:
-        of the result; float32 rounds the float64 values)."""
-        if self.mean is None:
+        """Z-scores exactly as the model's normaliser computes them, with its refusal of values
+        that would overflow once normalised (``dtype`` float32: the float64 values rounded)."""
+        if self.normalizer is None:
             return Q.astype(dtype, copy=False)
+        if dtype is np.float64:
+            return self.normalizer.transform(Q)  # type: ignore[no-any-return]
         out = np.empty(Q.shape, dtype=dtype)
-        return np.divide(np.subtract(Q, self.mean), self.scale, out=out)
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.divide(np.subtract(Q, self.mean), self.scale, out=out)
+        limit = _F32_MAX / max(1, Q.shape[-1])
+        if out.size and not (-limit <= out.min() and out.max() <= limit):
+            self.normalizer.transform(Q)  # raises the normaliser's own error for the value
+        return out
 
     def _pairs(
         self, Z: np.ndarray, precision: Precision, zerr: np.ndarray | None
