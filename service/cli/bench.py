@@ -133,6 +133,6 @@ def bench_growth(
                      queries, tolerance, target, baseline_frames, trainer, out, figure, work_dir)  # fmt: skip
 
 
-from service.cli.bench_paper import bench_paper  # noqa: E402  (the paper experiments)
+from service.cli.bench_paper import bench_paper
 
 app.command("paper")(bench_paper)
