@@ -167,6 +167,9 @@ def _in_child(target: Any, *args: Any, isolate: bool = True) -> dict[str, Any]:
                     ) from None
     finally:
         proc.join(60)
+        if proc.is_alive():  # its result is in; do not leave it (or its workers) behind
+            proc.terminate()
+            proc.join(10)
 
 
 # -- the benchmark ---------------------------------------------------------------------
