@@ -58,14 +58,18 @@ async def _feed(items: Sequence[pb.StreamRequest]) -> AsyncIterator[pb.StreamReq
         yield item
 
 
-async def _stream(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamRequest]) -> list[pb.StreamResponse]:
-    got = [r async for r in stub.LocalizeStream(_feed(items))]
+def _checked(items: Sequence[pb.StreamRequest], got: list[pb.StreamResponse]) -> list[pb.StreamResponse]:
+    """A stream's answers, in order and without errors (or the benchmark stops)."""
     if [r.sequence for r in got] != [q.sequence for q in items]:
         raise AssertionError("stream answers out of order")
     errors = [r.error.message for r in got if r.HasField("error")]
     if errors:
         raise AssertionError(f"{len(errors)} stream errors, e.g. {errors[0]}")
     return got
+
+
+async def _stream(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamRequest]) -> list[pb.StreamResponse]:
+    return _checked(items, [r async for r in stub.LocalizeStream(_feed(items))])
 
 
 async def _windowed(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamRequest], window: int,
@@ -85,12 +89,7 @@ async def _windowed(stub: pb_grpc.LocalizationStub, items: Sequence[pb.StreamReq
         latency.append(time.perf_counter() - sent[r.sequence])
         free.release()
         got.append(r)
-    if [r.sequence for r in got] != [q.sequence for q in items]:
-        raise AssertionError("stream answers out of order")
-    errors = [r.error.message for r in got if r.HasField("error")]
-    if errors:
-        raise AssertionError(f"{len(errors)} stream errors, e.g. {errors[0]}")
-    return got
+    return _checked(items, got)
 
 
 async def _streams(target: str, batches: list[list[pb.StreamRequest]],

@@ -100,6 +100,15 @@ async def _abort(context: grpc.aio.ServicerContext, exc: GridplaceError) -> NoRe
     raise AssertionError("unreachable")  # context.abort raises
 
 
+def _frame_error(request: pb.StreamRequest, exc: Exception) -> pb.StreamResponse:
+    """A stream frame's error answer (an unexpected one is logged and answered as internal)."""
+    if isinstance(exc, GridplaceError):
+        return messages.stream_error(request, exc)
+    log.error("LocalizeStream frame %s of %r failed", request.sequence, request.vehicle_id,
+              exc_info=exc)  # fmt: skip
+    return messages.stream_error(request, _internal())
+
+
 class LocalizationServicer(pb_grpc.LocalizationServicer):
     def __init__(self, context: ServiceContext, workers: Workers,
                  sequence: SequenceConfig | None = None) -> None:  # fmt: skip
@@ -147,12 +156,8 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
                     self._check_frame(request)
                     answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
                     yield messages.stream_response(answer)
-                except GridplaceError as exc:
-                    yield messages.stream_error(request, exc)
-                except Exception:
-                    log.exception("LocalizeStream frame %s of %r failed", request.sequence,
-                                  request.vehicle_id)  # fmt: skip
-                    yield messages.stream_error(request, _internal())
+                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                    yield _frame_error(request, exc)
             return
         pending: asyncio.Queue[tuple[pb.StreamRequest, asyncio.Future[Any]] | None] = (
             asyncio.Queue(STREAM_READ_AHEAD)
@@ -177,12 +182,8 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
                 request, answer = item
                 try:
                     yield messages.stream_response(await answer)
-                except GridplaceError as exc:
-                    yield messages.stream_error(request, exc)
-                except Exception:
-                    log.exception("LocalizeStream frame %s of %r failed", request.sequence,
-                                  request.vehicle_id)  # fmt: skip
-                    yield messages.stream_error(request, _internal())
+                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                    yield _frame_error(request, exc)
             await reader  # the client's stream ended: surface a broken one
         finally:
             reader.cancel()
