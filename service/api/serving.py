@@ -36,21 +36,25 @@ def port_in_use(what: str, host: str, port: int, how_to_change: str) -> Unavaila
     )  # fmt: skip
 
 
-def _address(host: str, port: int) -> tuple[socket.AddressFamily, tuple[object, ...]]:
+def _address(host: str, port: int) -> tuple[socket.AddressFamily, int, tuple[object, ...]]:
     try:
-        family, _, _, _, address = socket.getaddrinfo(
+        family, _, proto, _, address = socket.getaddrinfo(
             host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
         )[0]
     except socket.gaierror as exc:
         raise UnavailableError(f"cannot bind to {host!r}: {exc}", host=host) from exc
-    return family, address
+    return family, proto or socket.IPPROTO_TCP, address
 
 
 def bind_listener(host: str, port: int, what: str, how_to_change: str) -> socket.socket:
     """A listening TCP socket on ``host:port`` (SO_REUSEADDR only: a port in TIME_WAIT can be
-    reused, one that another process listens on cannot)."""
-    family, address = _address(host, port)
-    sock = socket.socket(family, socket.SOCK_STREAM)
+    reused, one that another process listens on cannot).
+
+    The socket is created with its protocol named (IPPROTO_TCP): asyncio sets TCP_NODELAY
+    only on accepted sockets whose ``proto`` says TCP, and without it every small answer
+    waits ~40 ms for Nagle's algorithm and the client's delayed ACK."""
+    family, proto, address = _address(host, port)
+    sock = socket.socket(family, socket.SOCK_STREAM, proto)
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(address)
