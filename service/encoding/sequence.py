@@ -1,82 +1,373 @@
-"""Sequence filtering (beyond the paper): stabilise a vehicle's estimate with its recent frames.
+"""Sequence localisation: a recursive Bayes filter over the route (beyond the paper).
 
-In the spirit of SeqSLAM, a vehicle driving the route visits reference frames in order at some
-unknown speed ``v`` (reference frames per query frame). Each query gives a log-probability for
-every frame of the route (:meth:`PhaseEncoder.frame_log_scores`); the filter keeps the last
-``window`` of them and scores each current position ``i`` and speed ``v`` by
-``Σ_s L_{t−s}(i − v·s)``, so a position is believed when the recent frames agree along a
-straight trajectory ending there. Frames whose own evidence contradicts the trajectory cannot
-make the estimate jump across the route on their own.
+A vehicle drives the route in order at an unknown, slowly changing speed. The filter is the
+forward pass of a hidden Markov model whose state is ``(speed, frame)``:
+
+- **speeds**: a grid ``min_speed, min_speed + speed_step, …, max_speed`` in reference frames per
+  query frame (mirrored to negative speeds with ``reverse``). Each query frame the speed stays,
+  or with probability ``speed_change`` moves to a neighbouring grid speed (a random walk: the
+  vehicle accelerates gradually); with ``reverse``, ``direction_change`` flips its sign.
+- **motion**: a state at frame ``i`` with speed ``v`` moves to ``i + v`` (a fractional ``v``
+  splits its mass between the two nearest frames). Mass driven off either end of the route
+  leaves it.
+- **relocalisation**: with probability ``relocalization`` the vehicle may be anywhere (a uniform
+  jump), so the filter recovers when it has lost track or the vehicle was moved.
+- **emission**: one query's frame log-scores ``L`` (``(N,)``, from a model's
+  ``frame_log_scores``). With ``emission="zscore"`` (default) they are standardised per query,
+  ``(L − mean L) / std L`` over the frames the model scored, and multiplied by
+  ``emission_scale``: the filter then needs no per-model calibration (it is invariant to any
+  positive affine change of the scores). ``emission="raw"`` uses ``emission_scale · L``, for
+  calibrated log-likelihoods. A frame the model did not score (``−inf``, e.g. outside a
+  chunked model's top chunks) gets the lowest score the model gave, so one query cannot veto.
+
+One update costs ``O(S·N)`` for ``S`` grid speeds (a few array passes; nothing depends on how
+many frames came before): the posterior lives in linear space rescaled to sum 1 each frame,
+which is stable because the uniform jump keeps every predicted probability ``≥ ε/(S·N)``.
+
+The estimate is the frame with the largest posterior (speeds marginalised); its confidence is
+the posterior mass within ``confidence_radius`` frames of it. The SeqSLAM-style window filter
+(:mod:`service.encoding.seqslam`) stays available as ``method="seqslam"``.
 """
 
 from __future__ import annotations
 
-from collections import deque
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, Literal, Protocol
 
 import numpy as np
-from scipy.special import logsumexp
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from service.errors import InvalidParameterError
+from service.errors import InvalidInputError, InvalidParameterError
 
-_FLOOR = np.log(1e-9)  # a frame's vote for an index it finds impossible, so one frame cannot veto
+MAX_SPEEDS = 64  # grid speeds per direction
+_BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`
 
 
-@dataclass(frozen=True)
-class SequenceConfig:
-    window: int = 6  # query frames combined (1 = no filtering)
-    min_velocity: float = 0.0  # reference frames advanced per query frame
-    max_velocity: float = 2.0
-    n_velocities: int = 9
-    reverse: bool = False  # also consider driving the route backwards
+class SequenceConfig(BaseModel):
+    """Parameters of a sequence filter, each with a validated range and a measured default."""
 
-    def velocities(self) -> np.ndarray:
-        if self.window < 1 or self.n_velocities < 1 or self.max_velocity < self.min_velocity:
-            raise InvalidParameterError("invalid sequence filter configuration")
-        v = np.linspace(self.min_velocity, self.max_velocity, self.n_velocities)
-        return np.unique(np.concatenate([v, -v])) if self.reverse else v
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    method: Literal["hmm", "seqslam"] = Field(
+        "hmm", description="hmm: recursive Bayes filter; seqslam: windowed trajectory score"
+    )
+    min_speed: float = Field(0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame")
+    max_speed: float = Field(2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame")
+    speed_step: float = Field(0.25, gt=0.0, le=50.0, description="spacing of the speed grid")
+    speed_change: float = Field(
+        0.01, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
+    )
+    reverse: bool = Field(False, description="the vehicle may drive the route backwards")
+    direction_change: float = Field(
+        0.001, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
+    )
+    relocalization: float = Field(
+        1e-3, gt=0.0, le=1.0, description="probability per frame of a jump anywhere on the route"
+    )
+    emission: Literal["zscore", "raw"] = Field(
+        "zscore", description="zscore: standardise each query's frame scores; raw: use them as is"
+    )
+    emission_scale: float = Field(0.1, gt=0.0, le=1e6, description="weight of one query's evidence")
+    confidence_radius: int = Field(
+        5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
+    )
+    window: int = Field(10, ge=1, le=1000, description="seqslam: query frames combined")
+
+    @model_validator(mode="after")
+    def _speeds(self) -> SequenceConfig:
+        if self.max_speed < self.min_speed:
+            raise ValueError(f"max_speed {self.max_speed} is below min_speed {self.min_speed}")
+        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
+        if n > MAX_SPEEDS:
+            raise ValueError(
+                f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has {n} "
+                f"speeds; at most {MAX_SPEEDS} (raise speed_step)"
+            )
+        return self
+
+    @classmethod
+    def parse(cls, **kwargs: Any) -> SequenceConfig:
+        """Like the constructor, but raises :class:`InvalidParameterError`."""
+        try:
+            return cls(**kwargs)
+        except ValidationError as exc:
+            msgs = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}" for e in exc.errors()
+            )
+            raise InvalidParameterError(f"invalid sequence filter parameters: {msgs}") from exc
+
+    def speeds(self) -> np.ndarray:
+        """The speed grid (ascending; negative speeds too with ``reverse``)."""
+        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
+        v = self.min_speed + self.speed_step * np.arange(n)
+        if self.reverse:
+            v = np.concatenate([-v[::-1], v])
+        return v
 
 
 @dataclass(frozen=True)
 class SequenceEstimate:
-    index: int
-    confidence: float
-    log_score: float
-    frames_used: int  # how many recent frames supported this estimate
+    index: int  # most probable frame
+    confidence: float  # posterior mass within ``confidence_radius`` frames of ``index``
+    log_score: float  # log of ``confidence``
+    frames_used: int  # query frames combined since the last reset
+    speed: float  # posterior mean speed (frames per query frame; nan for seqslam)
+
+
+class FrameFilter(Protocol):
+    """What the service and the harness need of a sequence filter."""
+
+    n_frames: int
+    config: SequenceConfig
+
+    def update(self, frame_log_scores: np.ndarray) -> SequenceEstimate: ...
+
+    def reset(self) -> None: ...
+
+
+def check_scores(scores: Any, n_frames: int) -> np.ndarray:
+    """One query's frame scores as float64 ``(N,)``: no NaN or +inf, at least one finite."""
+    L = np.asarray(scores, dtype=np.float64)
+    if L.shape != (n_frames,):
+        raise InvalidInputError(f"expected {n_frames} frame scores, got shape {L.shape}")
+    if np.isnan(L).any() or np.isposinf(L).any():
+        raise InvalidInputError("frame scores contain NaN or +inf")
+    if not np.isfinite(L).any():
+        raise InvalidInputError("every frame score is -inf: the model scored no frame")
+    return L
+
+
+def emission_log_likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray:
+    """Scaled log-likelihood of every frame, ``≤ 0`` with maximum ``0`` (see module doc)."""
+    finite = np.isfinite(L)
+    if not finite.all():
+        L = np.where(finite, L, L[finite].min())
+    if config.emission == "zscore":
+        std = L.std()
+        L = (L - L.mean()) / std if std > 0 else np.zeros_like(L)
+    e = config.emission_scale * (L - L.max())
+    return e
+
+
+class _Workspace(threading.local):
+    """Scratch arrays shared by every filter of one thread (per-vehicle memory is the posterior
+    alone: ``4·S·N`` bytes)."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def get(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        bufs = self.arrays.get(shape)
+        if bufs is None:
+            self.arrays.clear()  # one route size at a time is the common case; stay bounded
+            bufs = (np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32))
+            self.arrays[shape] = bufs
+        return bufs
+
+
+_WORKSPACE = _Workspace()
 
 
 class SequenceFilter:
-    """State of one vehicle's stream over one route of ``n_frames`` frames."""
+    """One vehicle's recursive Bayes filter over a route of ``n_frames`` frames."""
 
     def __init__(self, n_frames: int, config: SequenceConfig | None = None) -> None:
+        if int(n_frames) < 1:
+            raise InvalidParameterError(f"a route has at least one frame, got {n_frames}")
         self.n_frames = int(n_frames)
         self.config = config or SequenceConfig()
-        self._velocities = self.config.velocities()
-        self._history: deque[np.ndarray] = deque(maxlen=self.config.window)
+        if self.config.method != "hmm":
+            raise InvalidParameterError("SequenceFilter is the hmm method; use make_filter")
+        v = self.config.speeds()
+        self.speeds = v
+        self._n_dir = v.size // 2 if self.config.reverse else v.size  # speeds per direction
+        whole = np.floor(v).astype(np.int64)
+        frac = (v - whole).astype(np.float32)
+        # rows that share the integer part of their speed are shifted by one slice operation
+        self._groups = [
+            (int(a), slice(int(idx[0]), int(idx[-1]) + 1), (1 - frac[idx])[:, None],
+             frac[idx][:, None], bool(frac[idx].any()))
+            for a in np.unique(whole) for idx in [np.flatnonzero(whole == a)]
+        ]  # fmt: skip
+        self._post = np.empty((v.size, self.n_frames), dtype=np.float32)
+        self.reset()
 
     def reset(self) -> None:
-        self._history.clear()
+        """Forget the vehicle: every ``(speed, frame)`` equally likely."""
+        self._post.fill(1.0 / self._post.size)
+        self._mass = 1.0  # the stored posterior sums to this (normalised lazily)
+        self._frames = 0
+
+    @property
+    def nbytes(self) -> int:
+        """Memory this vehicle's state holds."""
+        return int(self._post.nbytes)
+
+    @property
+    def posterior(self) -> np.ndarray:
+        """Posterior over frames (speeds marginalised), ``(N,)`` float64 summing to 1."""
+        marginal = self._post.sum(axis=0, dtype=np.float64)
+        return marginal / marginal.sum()
+
+    @property
+    def state(self) -> np.ndarray:
+        """Joint posterior over ``(speed, frame)``, ``(S, N)`` float64 summing to 1."""
+        joint = self._post.astype(np.float64)
+        return joint / joint.sum()
 
     def update(self, frame_log_scores: np.ndarray) -> SequenceEstimate:
-        """Add one query's per-frame log-scores ``(N,)`` and return the filtered estimate."""
-        scores = np.asarray(frame_log_scores, dtype=np.float64)
-        if scores.shape != (self.n_frames,):
-            raise InvalidParameterError(
-                f"expected {self.n_frames} frame scores, got shape {scores.shape}"
-            )
-        if not np.isfinite(scores).any():
-            raise InvalidParameterError("every frame score is -inf")
-        posterior = scores - logsumexp(scores)
-        self._history.appendleft(np.maximum(posterior, _FLOOR))  # newest first
-        positions = np.arange(self.n_frames)
-        best_total = np.full(self.n_frames, -np.inf)
-        for v in self._velocities:
-            total = np.zeros(self.n_frames)
-            for s, past in enumerate(self._history):
-                idx = np.rint(positions - v * s).astype(np.int64)
-                inside = (idx >= 0) & (idx < self.n_frames)
-                total += np.where(inside, past[np.clip(idx, 0, self.n_frames - 1)], _FLOOR)
-            np.maximum(best_total, total, out=best_total)
-        best = int(np.argmax(best_total))
-        log_conf = float(best_total[best] - logsumexp(best_total))
-        return SequenceEstimate(best, float(np.exp(log_conf)), log_conf, len(self._history))
+        """Fold in one query's frame log-scores ``(N,)`` and return the filtered estimate."""
+        e = emission_log_likelihood(check_scores(frame_log_scores, self.n_frames), self.config)
+        lik = np.exp(e).astype(np.float32)[None, :]
+        if self._frames:
+            eps = self.config.relocalization
+            pred = self._predict()  # sums to (at most) 1: mass driven off the route is gone
+            pred += eps / ((1.0 - eps) * pred.size)  # the uniform jump, up to the factor 1 − ε
+            np.multiply(pred, lik, out=self._post)
+        else:
+            self._post *= lik
+        rows = self._post.sum(axis=1, dtype=np.float64)
+        self._mass = float(rows.sum())
+        self._frames += 1
+        return self._estimate(rows)
+
+    def _predict(self) -> np.ndarray:
+        """Speed change, then motion, of the normalised posterior (into a scratch array; the
+        vehicle's own array is scratch afterwards)."""
+        mixed, pred = _WORKSPACE.get(self._post.shape)
+        self._change_speed(self._post, mixed, pred, 1.0 / self._mass)
+        scratch, N = self._post, self.n_frames
+        for a, rows, keep, move, fractional in self._groups:
+            _shift(pred[rows], mixed[rows], a, keep if fractional else None, N)
+            if fractional:
+                _shift_add(pred[rows], mixed[rows], a + 1, move, scratch[rows], N)
+        return pred
+
+    def _change_speed(self, post: np.ndarray, out: np.ndarray, tmp: np.ndarray, scale: float) -> None:
+        """``out = scale ·`` (speed random walk on each direction's grid with reflecting ends,
+        then direction flips); ``tmp`` is scratch, ``post`` is left as it was."""
+        q = self.config.speed_change
+        np.multiply(post, scale * (1.0 - q), out=out)
+        h = np.float32(0.5 * q * scale)
+        n = self._n_dir
+        if q > 0:
+            np.multiply(post, h, out=tmp)  # each neighbour's share
+            for lo in range(0, self.speeds.size, n):
+                src, dst = tmp[lo : lo + n], out[lo : lo + n]
+                if n > 1:
+                    dst[1:] += src[:-1]
+                    dst[:-1] += src[1:]
+                    dst[0] += src[0]  # reflect: the missing neighbour's share stays
+                    dst[-1] += src[-1]
+                else:
+                    dst += 2 * src
+        if self.config.reverse:
+            r = self.config.direction_change
+            np.multiply(out[::-1], np.float32(r), out=tmp)  # speed v ↔ −v: the grid is mirrored
+            out *= np.float32(1.0 - r)
+            out += tmp
+
+    def _estimate(self, rows: np.ndarray) -> SequenceEstimate:
+        marginal = self._post.sum(axis=0)
+        best = int(np.argmax(marginal))
+        r = self.config.confidence_radius
+        near = float(marginal[max(0, best - r) : best + r + 1].sum(dtype=np.float64))
+        conf = min(1.0, near / self._mass)
+        speed = float(self.speeds @ rows) / self._mass
+        return SequenceEstimate(best, conf, float(np.log(max(conf, 1e-300))), self._frames, speed)
+
+
+def _shift(dst: np.ndarray, src: np.ndarray, a: int, w: np.ndarray | None, n: int) -> None:
+    """``dst[:, i] = w · src[:, i − a]`` (0 where the source lies off the route)."""
+    if abs(a) >= n:
+        dst.fill(0.0)
+        return
+    d, s = (slice(a, n), slice(0, n - a)) if a >= 0 else (slice(0, n + a), slice(-a, n))
+    if w is None:
+        dst[:, d] = src[:, s]
+    else:
+        np.multiply(src[:, s], w, out=dst[:, d])
+    if a >= 0:
+        dst[:, :a] = 0.0
+    else:
+        dst[:, n + a :] = 0.0
+
+
+def _shift_add(
+    dst: np.ndarray, src: np.ndarray, a: int, w: np.ndarray, tmp: np.ndarray, n: int
+) -> None:
+    """``dst[:, i] += w · src[:, i − a]`` where the source lies on the route (``tmp``: scratch)."""
+    if abs(a) >= n:
+        return
+    d, s = (slice(a, n), slice(0, n - a)) if a >= 0 else (slice(0, n + a), slice(-a, n))
+    np.multiply(src[:, s], w, out=tmp[:, d])
+    dst[:, d] += tmp[:, d]
+
+
+def make_filter(n_frames: int, config: SequenceConfig | None = None) -> FrameFilter:
+    """The filter ``config.method`` names, for a route of ``n_frames`` frames."""
+    config = config or SequenceConfig()
+    if config.method == "seqslam":
+        from service.encoding.seqslam import SeqSLAMFilter
+
+        return SeqSLAMFilter(n_frames, config)
+    return SequenceFilter(n_frames, config)
+
+
+@dataclass(frozen=True)
+class SequenceTrack:
+    """Per-frame answers of one drive (all arrays have one entry per query frame)."""
+
+    index: np.ndarray  # int64 filtered estimate
+    confidence: np.ndarray  # float64
+    speed: np.ndarray  # float64 posterior mean speed
+    raw_index: np.ndarray  # int64 each frame's own best frame (argmax of its scores)
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+ScoreFn = Callable[[np.ndarray], np.ndarray]
+
+
+def filter_sequence(scores: np.ndarray, config: SequenceConfig | None = None) -> SequenceTrack:
+    """Run one fresh filter over a drive's frame scores ``(T, N)`` (rows in driving order)."""
+    S = np.asarray(scores)
+    if S.ndim != 2 or S.shape[0] == 0:
+        raise InvalidInputError(f"expected frame scores of shape (T, N) with T >= 1, got {S.shape}")
+    filt = make_filter(S.shape[1], config)
+    return _run(filt, (S[t] for t in range(S.shape[0])), S.shape[0])
+
+
+def sequence_localize(
+    model: Any, queries: Any, config: SequenceConfig | None = None, block: int = _BLOCK
+) -> SequenceTrack:
+    """Localize ``queries`` (rows in driving order) as one drive on a fitted model that has
+    ``frame_log_scores`` (every model of :mod:`service.encoding`); frame scores are computed
+    ``block`` rows at a time, so memory stays ``O(block · N)``."""
+    if not hasattr(model, "frame_log_scores"):
+        raise InvalidParameterError(f"{type(model).__name__} gives no frame scores")
+    Q = np.asarray(queries)
+    if Q.ndim != 2 or Q.shape[0] == 0:
+        raise InvalidInputError(f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}")
+    filt = make_filter(int(model.n_frames_), config)
+
+    def rows() -> Any:
+        for s in range(0, Q.shape[0], block):
+            yield from model.frame_log_scores(Q[s : s + block])
+
+    return _run(filt, rows(), Q.shape[0])
+
+
+def _run(filt: FrameFilter, rows: Any, n: int) -> SequenceTrack:
+    index = np.empty(n, dtype=np.int64)
+    raw = np.empty(n, dtype=np.int64)
+    conf = np.empty(n)
+    speed = np.empty(n)
+    for t, row in enumerate(rows):
+        est = filt.update(row)
+        index[t], conf[t], speed[t] = est.index, est.confidence, est.speed
+        raw[t] = int(np.argmax(row))
+    return SequenceTrack(index, conf, speed, raw)
