@@ -107,15 +107,24 @@ class RhythmicEncoder(PlaceRecognizer):
         score = np.sum(np.stack([lp[rows, residues[:, j]] for j, lp in enumerate(logps)]), axis=0)
         bad = np.flatnonzero(index >= self.n_frames_)
         if bad.size:
-            frames = np.arange(self.n_frames_)
             for s in range(0, bad.size, _BLOCK):
                 blk = bad[s : s + _BLOCK]
-                total = np.zeros((blk.size, self.n_frames_))
-                for lp, p in zip(logps, self.periods_, strict=True):
-                    total += lp[blk][:, frames % p]
+                total = self._frame_scores([lp[blk] for lp in logps])
                 index[blk] = total.argmax(axis=1)
                 score[blk] = total.max(axis=1)
         return Localization(index, np.exp(score), np.zeros_like(index), np.asarray(score))
+
+    def _frame_scores(self, logps: list[np.ndarray]) -> np.ndarray:
+        frames = np.arange(self.n_frames_)
+        total = np.zeros((logps[0].shape[0], self.n_frames_))
+        for lp, p in zip(logps, self.periods_, strict=True):
+            total += lp[:, frames % p]
+        return total
+
+    def frame_log_scores(self, X: Any) -> np.ndarray:
+        """Summed log-probability of every frame's residues, ``(n_q, N)``."""
+        Qn = self.normalizer_.transform(self._check_query(X))
+        return self._frame_scores([dc.log_probs(Qn) for dc in self.digits_])
 
     def footprint(self) -> Footprint:
         self._check_fitted()
@@ -177,9 +186,19 @@ class ExactNN(PlaceRecognizer):
         return self
 
     def _cache_search_arrays(self) -> None:
-        """float32 reference and its squared norms, computed once (not per query)."""
+        """float32 reference and its squared norms, computed once (not per query), and the
+        scale of the frame scores: ``σ²`` = median squared distance between consecutive
+        reference frames (how far one place's descriptor moves within a frame)."""
         self._ref32 = np.ascontiguousarray(self.reference_, dtype=np.float32)
         self._ref_sq = np.einsum("ij,ij->i", self._ref32, self._ref32)
+        step = np.diff(self._ref32.astype(np.float64), axis=0)
+        median = float(np.median(np.einsum("ij,ij->i", step, step))) if step.size else 0.0
+        self.sigma2_ = median if median > 0 else 1.0
+
+    def _sq_distances(self, q: np.ndarray) -> np.ndarray:
+        """Squared distances ``(n_q, N)`` of prepared float32 queries to every frame."""
+        R, r2 = self._ref32, self._ref_sq
+        return np.maximum(r2[None, :] - 2.0 * (q @ R.T) + np.einsum("ij,ij->i", q, q)[:, None], 0)
 
     def _prepare(self, Xn: np.ndarray) -> np.ndarray:
         if self.metric == "cosine":
@@ -188,13 +207,12 @@ class ExactNN(PlaceRecognizer):
 
     def localize(self, X: Any) -> Localization:
         Qn = self._prepare(self.normalizer_.transform(self._check_query(X))).astype(np.float32)
-        R, r2 = self._ref32, self._ref_sq
         index = np.empty(Qn.shape[0], dtype=np.int64)
         conf = np.empty(Qn.shape[0])
-        frames = np.arange(R.shape[0])
+        frames = np.arange(self.n_frames_)
         for s in range(0, Qn.shape[0], _BLOCK):
             q = Qn[s : s + _BLOCK]
-            dist = np.maximum(r2[None, :] - 2.0 * (q @ R.T) + np.einsum("ij,ij->i", q, q)[:, None], 0)
+            dist = self._sq_distances(q)
             best = dist.argmin(axis=1)
             d1 = np.sqrt(dist[np.arange(q.shape[0]), best])
             far = np.abs(frames[None, :] - best[:, None]) > self.exclusion
@@ -203,6 +221,15 @@ class ExactNN(PlaceRecognizer):
             conf[s : s + _BLOCK] = np.where(np.isfinite(d2) & (d2 > 0), 1.0 - d1 / np.maximum(d2, 1e-12), 0.0)
         conf = np.clip(conf, 0.0, 1.0)
         return Localization(index, conf, np.zeros_like(index), np.log(np.maximum(conf, 1e-300)))
+
+    def frame_log_scores(self, X: Any) -> np.ndarray:
+        """Gaussian log-likelihood ``−d²/(2σ²)`` of every frame, ``(n_q, N)`` (``σ²``: see
+        :meth:`_cache_search_arrays`)."""
+        Qn = self._prepare(self.normalizer_.transform(self._check_query(X))).astype(np.float32)
+        out = np.empty((Qn.shape[0], self.n_frames_))
+        for s in range(0, Qn.shape[0], _BLOCK):
+            out[s : s + _BLOCK] = self._sq_distances(Qn[s : s + _BLOCK]) * (-0.5 / self.sigma2_)
+        return out
 
     def footprint(self) -> Footprint:
         self._check_fitted()

@@ -17,6 +17,9 @@ from service.encoding.normalization import Normalizer
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
 
+_BLOCK = 256  # query rows per faiss search when scoring every frame
+_SIGMA_FRAMES = 4096  # decoded frames used for the frame-score scale
+
 
 def _faiss() -> Any:
     try:
@@ -84,6 +87,24 @@ class PQIndex(PlaceRecognizer):
             conf = np.where(np.isfinite(d2) & (d2 > 0), 1.0 - d1 / d2, 0.0)
         conf = np.clip(conf.astype(np.float64), 0.0, 1.0)
         return Localization(best, conf, np.zeros_like(best), np.log(np.maximum(conf, 1e-300)))
+
+    def frame_log_scores(self, X: Any) -> np.ndarray:
+        """Gaussian log-likelihood ``−d²/(2σ²)`` of every frame from the quantised (ADC)
+        distances, ``(n_q, N)``; ``σ²`` is the median squared distance between consecutive
+        decoded frames (from the first ``_SIGMA_FRAMES`` frames)."""
+        Qn = np.ascontiguousarray(self.normalizer_.transform(self._check_query(X)), dtype=np.float32)
+        if getattr(self, "sigma2_", None) is None:
+            n = min(self.n_frames_, _SIGMA_FRAMES)
+            step = np.diff(self.index_.reconstruct_n(0, n).astype(np.float64), axis=0)
+            median = float(np.median(np.einsum("ij,ij->i", step, step)))
+            self.sigma2_ = median if median > 0 else 1.0
+        out = np.empty((Qn.shape[0], self.n_frames_))
+        rows = np.arange(min(_BLOCK, Qn.shape[0]))[:, None]
+        for s in range(0, Qn.shape[0], _BLOCK):
+            q = Qn[s : s + _BLOCK]
+            dist, idx = self.index_.search(q, self.n_frames_)
+            out[s : s + q.shape[0]][rows[: q.shape[0]], idx] = np.maximum(dist, 0) * (-0.5 / self.sigma2_)
+        return out
 
     def footprint(self) -> Footprint:
         self._check_fitted()
