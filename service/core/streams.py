@@ -3,12 +3,14 @@
 Transport-agnostic glue over :class:`~service.core.localization.LocalizationService` (the
 gRPC ``LocalizeStream`` uses it; a REST/WebSocket stream could use it unchanged). A frame is
 validated and localized exactly as a single ``/localize`` query is (same validation, metrics
-and hot-swap semantics); with ``sequence_filter`` the vehicle's recent frames are combined
-along the route by :class:`service.encoding.sequence.SequenceFilter` (SeqSLAM-like).
+and hot-swap semantics); with ``sequence_filter`` the frame's scores over the route update the
+vehicle's recursive Bayes filter (:mod:`service.encoding.sequence`), whose estimate is answered.
 
-A vehicle's filter history belongs to one map *version*: when the served version changes
-(an activation or rollback mid-stream), the map changes, the flag is turned off, or the client
-asks for a reset, the history restarts, so scores of two different models are never mixed.
+A vehicle's filter belongs to one map *version*: when the served version changes (an
+activation or rollback mid-stream), the map changes, the flag is turned off, or the client asks
+for a reset, the filter restarts, so scores of two different models are never mixed. Filters of
+the least recently seen vehicles are dropped beyond ``max_vehicles`` or when the stream's
+filters together would hold more than ``max_filter_bytes``.
 """
 
 from __future__ import annotations
@@ -21,11 +23,13 @@ import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
+from service.core.sequences import chunk_of
 from service.encoding.sequence import SequenceConfig, SequenceFilter
 from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
 
 MAX_VEHICLE_ID = 128
 MAX_VEHICLES_PER_STREAM = 1024
+MAX_FILTER_BYTES_PER_STREAM = 512 * 1024 * 1024  # the filters' posteriors, all vehicles together
 
 
 @dataclass(frozen=True)
@@ -54,7 +58,7 @@ class FrameAnswer:
     filtered: bool
     raw_index: int  # the frame's own estimate (what /localize answers)
     raw_confidence: float
-    frames_used: int  # frames the filter combined (1 unfiltered)
+    frames_used: int  # frames the filter combined since its start (1 unfiltered)
     latency_ms: float
 
 
@@ -65,29 +69,24 @@ class _Track:
     filter: SequenceFilter
 
 
-def _chunk_of(loaded: LoadedModel, index: int) -> int:
-    bounds = getattr(loaded.model, "chunk_bounds_", None)
-    if bounds is None:
-        return 0
-    return int(np.searchsorted(np.asarray(bounds), index, side="right") - 1)
-
-
 class FleetStream:
-    """The state of one open stream: a sequence filter per vehicle (least recently seen
-    vehicles are forgotten beyond ``max_vehicles``). Not thread-safe: one stream's frames are
-    answered one after another, in order (by the caller, or by the micro-batcher's worker)."""
+    """The state of one open stream: a sequence filter per vehicle. Not thread-safe: one
+    stream's frames are answered one after another, in order (by the caller, or by the
+    micro-batcher's worker)."""
 
     def __init__(
         self,
         service: LocalizationService,
         config: SequenceConfig | None = None,
         max_vehicles: int = MAX_VEHICLES_PER_STREAM,
+        max_filter_bytes: int = MAX_FILTER_BYTES_PER_STREAM,
     ) -> None:
         self.service = service
         self.config = config or SequenceConfig()
-        self.config.velocities()  # validate once, not per vehicle
         self.max_vehicles = max_vehicles
+        self.max_filter_bytes = max_filter_bytes
         self._tracks: OrderedDict[str, _Track] = OrderedDict()
+        self._bytes = 0
 
     @property
     def vehicles(self) -> int:
@@ -119,9 +118,9 @@ class FleetStream:
             track = self._track(frame, loaded)
             estimate = track.filter.update(loaded.model.frame_log_scores(Q)[0])
             index, conf, used = estimate.index, estimate.confidence, estimate.frames_used
-            chunk = _chunk_of(loaded, index)
+            chunk = int(chunk_of(loaded, index))
         else:
-            self._tracks.pop(frame.vehicle_id, None)
+            self._drop(frame.vehicle_id)
         return FrameAnswer(
             frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
             frame.sequence_filter, raw_index, raw_conf, used,
@@ -145,13 +144,28 @@ class FleetStream:
             )  # fmt: skip
         return Q
 
+    @property
+    def filter_bytes(self) -> int:
+        """Memory the vehicles' filters hold together."""
+        return self._bytes
+
+    def _drop(self, vehicle_id: str) -> None:
+        track = self._tracks.pop(vehicle_id, None)
+        if track is not None:
+            self._bytes -= track.filter.nbytes
+
     def _track(self, frame: Frame, loaded: LoadedModel) -> _Track:
         track = self._tracks.get(frame.vehicle_id)
         if (track is None or frame.reset or track.map != loaded.map
                 or track.version != loaded.version):  # fmt: skip
+            self._drop(frame.vehicle_id)
             track = _Track(loaded.map, loaded.version, SequenceFilter(loaded.n_frames, self.config))
             self._tracks[frame.vehicle_id] = track
+            self._bytes += track.filter.nbytes
         self._tracks.move_to_end(frame.vehicle_id)
-        while len(self._tracks) > self.max_vehicles:
-            self._tracks.popitem(last=False)
+        while len(self._tracks) > 1 and (
+            len(self._tracks) > self.max_vehicles or self._bytes > self.max_filter_bytes
+        ):
+            _, old = self._tracks.popitem(last=False)  # the least recently seen vehicle
+            self._bytes -= old.filter.nbytes
         return track

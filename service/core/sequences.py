@@ -1,0 +1,104 @@
+"""Sequence localisation in the service layer: an ordered batch of frames as one drive.
+
+REST (``POST /v1/localize/sequence``) calls :class:`SequenceLocalizer`; the gRPC stream filters
+frame by frame through :mod:`service.core.streams`. Both validate queries with the one
+:class:`~service.core.localization.LocalizationService`, record its metrics, and run the filter
+of :mod:`service.encoding.sequence` on the model's frame scores. A request is one drive: the
+filter starts from a uniform belief and is not kept after the answer.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
+from service.core.model_store import LoadedModel
+from service.encoding import check_descriptors
+from service.encoding.sequence import SequenceConfig, sequence_localize
+from service.errors import EmptyInputError, InvalidInputError
+
+MAX_SEQUENCE_FRAMES = 100_000  # frames of one drive per request
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """Per-frame answers of one drive on one map version (arrays: one entry per frame)."""
+
+    map: str
+    version: int
+    index: np.ndarray  # int64 filtered estimate
+    chunk: np.ndarray  # int64 chunk holding the filtered estimate
+    confidence: np.ndarray  # float64 posterior mass near the estimate
+    speed: np.ndarray  # float64 posterior mean speed (frames per query frame)
+    raw_index: np.ndarray  # int64 each frame's own answer (what /localize answers)
+    raw_confidence: np.ndarray  # float64
+    config: SequenceConfig
+    latency_ms: float
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+def chunk_of(loaded: LoadedModel, index: np.ndarray | int) -> np.ndarray:
+    """The chunk holding each frame index (0 for an unchunked model)."""
+    idx = np.asarray(index, dtype=np.int64)
+    bounds = getattr(loaded.model, "chunk_bounds_", None)
+    if bounds is None:
+        return np.zeros_like(idx)
+    return np.searchsorted(np.asarray(bounds), idx, side="right").astype(np.int64) - 1
+
+
+class SequenceLocalizer:
+    """Localize ordered frames as one drive, through ``service`` (same validation, metrics and
+    hot-swap semantics as ``/localize/batch``: one model version answers the whole drive)."""
+
+    def __init__(self, service: LocalizationService) -> None:
+        self.service = service
+
+    def localize(self, name: str, X: Any, config: SequenceConfig) -> SequenceResult:
+        start = time.perf_counter()
+        loaded = self.service.served(name)
+        Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
+        return self.run(loaded, Q, config, start, "descriptor")
+
+    def localize_bytes(
+        self, name: str, data: bytes, n_features: int | None, config: SequenceConfig
+    ) -> SequenceResult:
+        start = time.perf_counter()
+        loaded = self.service.served(name)
+        Q = self.service.query_bytes(loaded, data, n_features)
+        return self.run(loaded, Q, config, start, "binary")
+
+    def localize_images(
+        self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig
+    ) -> SequenceResult:
+        start = time.perf_counter()
+        if not images:
+            raise EmptyInputError("no image was sent")
+        if len(images) > MAX_BATCH_IMAGES:
+            raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
+        loaded = self.service.served(name)
+        return self.run(loaded, self.service.query_images(loaded, images), config, start, "image")
+
+    def run(
+        self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str
+    ) -> SequenceResult:
+        """Filter validated queries ``Q`` (rows in driving order) on ``loaded``."""
+        if Q.shape[0] > MAX_SEQUENCE_FRAMES:
+            raise InvalidInputError(
+                f"a sequence holds at most {MAX_SEQUENCE_FRAMES} frames, got {Q.shape[0]}",
+                limit=MAX_SEQUENCE_FRAMES, got=int(Q.shape[0]),
+            )  # fmt: skip
+        raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
+        track = sequence_localize(loaded.model, Q, config)
+        return SequenceResult(
+            loaded.map, loaded.version, track.index, chunk_of(loaded, track.index),
+            track.confidence, track.speed, raw.index, raw.confidence, config,
+            (time.perf_counter() - start) * 1000.0,
+        )  # fmt: skip
+
