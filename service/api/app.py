@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from service.api import access_log, routes_admin, routes_health, routes_localize
+from service.api import access_log, routes_admin, routes_health, routes_localize, routes_sequence
 from service.api.auth import AdminGate
 from service.api.companions import Companion
 from service.api.errors import install_error_handlers
@@ -21,7 +21,8 @@ log = logging.getLogger("gridplace.api")
 
 DESCRIPTION = """Visual place recognition with sub-linear storage growth (Le & Milford 2018).
 
-* **localize**: a descriptor, float32 bytes or an image → frame index on a map's route.
+* **localize**: a descriptor, float32 bytes or an image → frame index on a map's route;
+  `localize/sequence`: an ordered batch of frames as one drive (sequence filter).
 * **admin** (bearer token): upload a route, follow its training job, activate / roll back /
   delete versions. Errors are JSON `{"error": code, "message": …}`.
 """
@@ -65,6 +66,7 @@ def create_app(
     app.state.context = ctx
     install_error_handlers(app)
     app.include_router(routes_localize.router)
+    app.include_router(routes_sequence.router)
     app.include_router(routes_admin.router)
     app.include_router(routes_health.router)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 1024 * 1024,
