@@ -23,7 +23,9 @@ from service.encoding import (
 )
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
+from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.validation import check_descriptors
+from service.errors import InvalidParameterError
 
 console = Console()
 
@@ -67,22 +69,56 @@ def train(
     )
 
 
+SequenceOpt = Annotated[
+    bool, typer.Option("--sequence", help="the query rows are one drive, in order: sequence filter")
+]
+FilterOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--filter", metavar="KEY=VALUE",
+        help="a sequence filter parameter, repeatable (e.g. emission_scale=0.2, reverse=true)",
+    ),
+]  # fmt: skip
+
+
+def sequence_config(items: list[str] | None) -> SequenceConfig:
+    """``--filter KEY=VALUE`` options as a validated filter configuration."""
+    given: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InvalidParameterError(f"--filter must be KEY=VALUE, got {item!r}")
+        given[key.strip()] = value.strip()
+    return SequenceConfig.parse(**given)
+
+
 @cli_errors
 def localize(
     model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
     queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
     out: Annotated[Path | None, typer.Option("--out", "-o", help="write indices (.npy)")] = None,
     confidence_out: Annotated[Path | None, typer.Option(help="write confidences (.npy)")] = None,
+    sequence: SequenceOpt = False,
+    filter_params: FilterOpt = None,
 ) -> None:
-    """Predict the frame index of every query row."""
+    """Predict the frame index of every query row (with --sequence: the filtered estimates)."""
+    if filter_params and not sequence:
+        raise InvalidParameterError("--filter needs --sequence")
+    config = sequence_config(filter_params) if sequence else None
     model = load_model(model_dir)
-    loc = model.localize(load_npy(queries))
+    Q = load_npy(queries)
+    if config is not None:
+        track = sequence_localize(model, check_descriptors(Q, n_features=model.n_features_in_), config)
+        index, confidence = track.index, track.confidence
+    else:
+        loc = model.localize(Q)
+        index, confidence = loc.index, loc.confidence
     if out is not None:
-        np.save(out, loc.index)
+        np.save(out, index)
     if confidence_out is not None:
-        np.save(confidence_out, loc.confidence)
+        np.save(confidence_out, confidence)
     if out is None:
-        for i, c in zip(loc.index, loc.confidence, strict=True):
+        for i, c in zip(index, confidence, strict=True):
             typer.echo(f"{int(i)}\t{float(c):.4f}")
 
 
@@ -93,11 +129,18 @@ def evaluate(
     tolerance: Annotated[int, typer.Option(help="frames of tolerance")] = 0,
     ground_truth: Annotated[Path | None, typer.Option(help="int .npy: query i -> frame")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
+    sequence: SequenceOpt = False,
+    filter_params: FilterOpt = None,
 ) -> None:
-    """Precision within a tolerance, query time and storage of a saved model."""
+    """Precision within a tolerance, query time and storage of a saved model (with --sequence
+    also the sequence filter's precision, the query file being one drive in row order)."""
+    if filter_params and not sequence:
+        raise InvalidParameterError("--filter needs --sequence")
+    config = sequence_config(filter_params) if sequence else None
     model = load_model(model_dir)
     truth = load_npy(ground_truth) if ground_truth is not None else None
-    result = evaluate_model(model, load_npy(queries), truth, tolerance)
+    Q = check_descriptors(load_npy(queries), n_features=model.n_features_in_, what=str(queries))
+    result = evaluate_model(model, Q, truth, tolerance, sequence=config)
     if as_json:
         typer.echo(json.dumps(result))
         return
@@ -106,6 +149,12 @@ def evaluate(
         f"footprint {result['footprint_bytes']} B (paper formula {result['paper_bytes']:.0f} B); "
         f"{result['query_seconds_per_descriptor'] * 1e6:.1f} µs/query"
     )
+    if config is not None:
+        seq = result["sequence"]
+        console.print(
+            f"sequence precision@{tolerance}: {result['sequence_precision']:.4f} "
+            f"(filter {config.method}, {seq['seconds_per_frame'] * 1e6:.0f} µs/frame)"
+        )
 
 
 def register(app: typer.Typer) -> None:
