@@ -21,6 +21,7 @@ from service.wire import (
     MapDetail,
     MapSummary,
     Readiness,
+    SequenceLocalization,
     TrainingOptions,
     Version,
 )
@@ -38,6 +39,7 @@ __all__ = [
     "MapSummary",
     "Readiness",
     "RequestValidationError",
+    "SequenceLocalization",
     "ServerUnreachableError",
     "TrainingOptions",
     "UnexpectedResponseError",

@@ -31,6 +31,7 @@ from service.wire import (
     MapDetail,
     MapSummary,
     Readiness,
+    SequenceLocalization,
     TrainingOptions,
     Version,
 )
@@ -91,6 +92,10 @@ class AsyncGridplaceClient:
 
     async def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
         return await self._send(calls.localize_images(map, images))
+
+    async def localize_sequence(self, map: str, descriptors: ArrayLike,
+                                **filter_params: Any) -> SequenceLocalization:  # fmt: skip
+        return await self._send(calls.localize_sequence(map, descriptors, filter_params))
 
     async def upload_route(self, map: str, route: RouteSource, options: TrainingOptions | None = None,
                            *, idempotency_key: str | None = None, filename: str | None = None,

@@ -31,6 +31,7 @@ from service.wire import (
     MapDetail,
     MapSummary,
     Readiness,
+    SequenceLocalization,
     TrainingOptions,
     Version,
 )
@@ -163,6 +164,17 @@ def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalizat
     X = as_float32_rows(descriptors, "descriptors")
     return Call("POST", "/v1/localize/batch", _reader(BatchLocalization), kwargs={
         "params": {"map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
+        "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip
+
+
+def localize_sequence(
+    map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any]
+) -> Call[SequenceLocalization]:
+    """Rows in driving order, one binary float32 request; the server validates the filter."""
+    X = as_float32_rows(descriptors, "descriptors")
+    params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in filter_params.items()}
+    return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization), kwargs={
+        "params": {**params, "map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
         "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip
 
 

@@ -36,6 +36,7 @@ from service.wire import (
     MapDetail,
     MapSummary,
     Readiness,
+    SequenceLocalization,
     TrainingOptions,
     Version,
 )
@@ -143,6 +144,14 @@ class GridplaceClient:
 
     def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
         return self._send(calls.localize_images(map, images))
+
+    def localize_sequence(
+        self, map: str, descriptors: ArrayLike, **filter_params: Any
+    ) -> SequenceLocalization:
+        """An n × d matrix whose rows are one drive in order: the sequence filter's estimate
+        and each frame's own answer; ``filter_params`` (e.g. ``emission_scale=0.2``,
+        ``reverse=True``) override the server's filter defaults."""
+        return self._send(calls.localize_sequence(map, descriptors, filter_params))
 
     # -- admin ------------------------------------------------------------------------------
     def upload_route(

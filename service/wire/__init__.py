@@ -40,6 +40,7 @@ from service.wire.localize import (
     LocalizeRequest,
 )
 from service.wire.maps import MapDetail, MapSummary, Version
+from service.wire.sequence import SequenceLocalization
 from service.wire.training import TrainingOptions
 
 __all__ = [
@@ -65,6 +66,7 @@ __all__ = [
     "PartProgress",
     "Readiness",
     "Request",
+    "SequenceLocalization",
     "TrainingOptions",
     "Version",
     "VersionNumber",
