@@ -17,8 +17,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 
 from service.api.routes_localize import (
-    ERRORS,
     _IMAGES_FORM,
+    ERRORS,
     _b64,
     _body_doc,
     _form,

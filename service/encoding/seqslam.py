@@ -47,13 +47,17 @@ class SeqSLAMFilter:
         self._history.appendleft(np.maximum(posterior, _FLOOR))  # newest first
         positions = np.arange(self.n_frames)
         best_total = np.full(self.n_frames, -np.inf)
+        best_speed = np.zeros(self.n_frames)
         for v in self._velocities:
             total = np.zeros(self.n_frames)
             for s, past in enumerate(self._history):
                 idx = np.rint(positions - v * s).astype(np.int64)
                 inside = (idx >= 0) & (idx < self.n_frames)
                 total += np.where(inside, past[np.clip(idx, 0, self.n_frames - 1)], _FLOOR)
-            np.maximum(best_total, total, out=best_total)
+            better = total > best_total
+            best_total[better] = total[better]
+            best_speed[better] = v
         best = int(np.argmax(best_total))
         log_conf = float(best_total[best] - logsumexp(best_total))
-        return SequenceEstimate(best, float(np.exp(log_conf)), log_conf, len(self._history), float("nan"))
+        return SequenceEstimate(best, float(np.exp(log_conf)), log_conf, len(self._history),
+                                float(best_speed[best]))  # fmt: skip

@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from service.errors import InvalidInputError, InvalidParameterError
 
 MAX_SPEEDS = 64  # grid speeds per direction
+MAX_SEQSLAM_WORK = 2000  # window × speeds of the seqslam filter (its cost per frame)
 _BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`
 
 
@@ -73,7 +74,7 @@ class SequenceConfig(BaseModel):
     confidence_radius: int = Field(
         5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
     )
-    window: int = Field(10, ge=1, le=1000, description="seqslam: query frames combined")
+    window: int = Field(10, ge=1, le=200, description="seqslam: query frames combined")
 
     @model_validator(mode="after")
     def _speeds(self) -> SequenceConfig:
@@ -84,6 +85,12 @@ class SequenceConfig(BaseModel):
             raise ValueError(
                 f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has {n} "
                 f"speeds; at most {MAX_SPEEDS} (raise speed_step)"
+            )
+        work = self.window * n * (2 if self.reverse else 1)
+        if self.method == "seqslam" and work > MAX_SEQSLAM_WORK:
+            raise ValueError(
+                f"seqslam re-scans window × speeds = {work} trajectories per frame; "
+                f"at most {MAX_SEQSLAM_WORK}"
             )
         return self
 
@@ -113,7 +120,7 @@ class SequenceEstimate:
     confidence: float  # posterior mass within ``confidence_radius`` frames of ``index``
     log_score: float  # log of ``confidence``
     frames_used: int  # query frames combined since the last reset
-    speed: float  # posterior mean speed (frames per query frame; nan for seqslam)
+    speed: float  # estimated speed, frames per query frame (seqslam: of the best trajectory)
 
 
 class FrameFilter(Protocol):

@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 from grpc_helpers import D, N, Served, fit, publish
 
+from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.synthetic import smooth_route
 from service.grpc.gen import localization_pb2 as pb
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
+from service.registry import Registry
 
 pytestmark = pytest.mark.slow
 
@@ -106,6 +108,10 @@ def test_sequence_filter_stabilises_a_noisy_route(served: Served) -> None:
     p_raw = _precision([r.index for r in raw], truth)
     p_seq = _precision([r.index for r in filtered], truth)
     assert p_raw < 0.9 and p_seq > p_raw + 0.1, (p_raw, p_seq)
+    # the stream answers what the library filter answers on the served artifact
+    model = Registry(served.data_dir).load_model("route", 1)
+    track = sequence_localize(model, noisy[truth].astype(np.float32), SequenceConfig())
+    assert [r.index for r in filtered] == track.index.tolist()
 
 
 def test_reset_and_turning_the_filter_off_restart_the_history(served: Served) -> None:

@@ -14,8 +14,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.encoding import ChunkedPlaceEncoder, ExactNN, PhaseEncoder, PQIndex, RhythmicEncoder
-from service.encoding import faiss_available
+from service.encoding import (
+    ChunkedPlaceEncoder,
+    ExactNN,
+    PhaseEncoder,
+    PQIndex,
+    RhythmicEncoder,
+    faiss_available,
+)
 from service.encoding.seqslam import SeqSLAMFilter
 from service.encoding.sequence import (
     SequenceConfig,
@@ -251,7 +257,8 @@ def test_bad_rows_raise_clear_errors_and_leave_the_state() -> None:
     ("params", "match"),
     [({"max_speed": 0.2}, "below min_speed"), ({"speed_step": 0.001}, "at most 64"),
      ({"relocalization": 0.0}, "relocalization"), ({"emission_scale": -1.0}, "emission_scale"),
-     ({"method": "viterbi"}, "method"), ({"window": 0}, "window"), ({"bogus": 1}, "bogus")],
+     ({"method": "viterbi"}, "method"), ({"window": 0}, "window"), ({"bogus": 1}, "bogus"),
+     ({"method": "seqslam", "window": 200, "speed_step": 0.05}, "at most 2000")],
 )  # fmt: skip
 def test_invalid_configurations_are_named(params: dict[str, object], match: str) -> None:
     with pytest.raises(InvalidParameterError, match=match):
