@@ -133,6 +133,34 @@ def bench_growth(
                      queries, tolerance, target, baseline_frames, trainer, out, figure, work_dir)  # fmt: skip
 
 
+@app.command("sequence")
+def bench_sequence(
+    sizes: Annotated[str, typer.Option(help="route lengths N timed, comma-separated")] = "10000,100000",
+    repeats: Annotated[int, typer.Option(help="filter updates timed per N")] = 200,
+    grid: Annotated[str, typer.Option(help="tuning grid on split A: small | tiny")] = "small",
+    nordland: Annotated[bool, typer.Option(help="measure precision on Nordland if present")] = True,
+    trainer: Annotated[str | None, typer.Option(help="gridplace trainer (default: the default config's)")] = None,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-sequence.json"),
+) -> None:
+    """Sequence filter: per-frame cost beside the SeqSLAM filter; precision on Nordland
+    (tuned on half A, reported on half B and the whole route) for exact NN and gridplace."""
+    from service.bench.sequence_bench import GRIDS, run_sequence_bench
+    from service.errors import InvalidParameterError
+
+    if grid not in GRIDS:
+        raise typer.BadParameter(f"choose one of {', '.join(GRIDS)}", param_hint="--grid")
+    try:
+        n_list = [int(s) for s in sizes.split(",") if s.strip()]
+    except ValueError as exc:
+        raise typer.BadParameter(f"not integers: {sizes!r}", param_hint="--sizes") from exc
+    if not n_list or min(n_list) < 1 or repeats < 1:
+        raise InvalidParameterError("--sizes and --repeats must be positive")
+    from service.encoding import ModelParams
+
+    params = ModelParams.parse(**({"trainer": trainer} if trainer else {}))
+    run_sequence_bench(n_list, repeats, grid, nordland, params, out)
+
+
 from service.cli.bench_paper import bench_paper
 
 app.command("paper")(bench_paper)

@@ -1,0 +1,209 @@
+"""Sequence-filter benchmark: per-frame cost beside the SeqSLAM window filter, and sequence
+precision on Nordland (exact NN and gridplace on the same descriptors), in one run.
+
+* Cost: random frame scores on routes of ``N`` frames (the filters' work does not depend on
+  the scores' values); microseconds per update of the recursive (HMM) filter and of the
+  SeqSLAM window filter (window 10, speeds 0…2 by 0.25, as in the issue's figures).
+* Precision, with the session's validation split: the route is frames ``[0, 3576)``; half
+  **A** = ``[0, 1788)`` tunes, half **B** = ``[1788, 3576)`` and the whole route report. A
+  method is fitted on the summer frames of a split and its frame scores are computed for the
+  winter frames. Tuning drives on A are the winter traversal driven at different speeds:
+  ``speed_1`` (the traversal as recorded), ``speed_0.7``, ``speed_1.5``, a smoothly
+  ``varying`` speed in [0.6, 1.8], and a ``kidnap`` (the vehicle is moved 500 frames ahead
+  mid-drive). The configuration with the best mean precision at ±5 frames over every method
+  and drive wins; B and the whole route are then reported at speed 1 without re-tuning.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import platform
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from service.bench.data import nordland
+from service.encoding import ExactNN, ModelParams, build_model
+from service.encoding.base import PlaceRecognizer, precision_at
+from service.encoding.seqslam import SeqSLAMFilter
+from service.encoding.sequence import SequenceConfig, SequenceFilter, filter_sequence
+
+console = Console()
+SPLITS = {"A": (0, 1788), "B": (1788, 3576), "all": (0, 3576)}
+TOLERANCES = (0, 2, 5, 10)
+OLD_FILTER = SequenceConfig(method="seqslam", min_speed=0.0, max_speed=2.0, speed_step=0.25, window=10)
+GRIDS: dict[str, dict[str, tuple[Any, ...]]] = {
+    "small": {"emission_scale": (0.05, 0.1, 0.2), "speed_change": (0.003, 0.01, 0.03),
+              "relocalization": (1e-4, 1e-3)},
+    "tiny": {"emission_scale": (0.1,), "speed_change": (0.01,), "relocalization": (1e-3,)},
+}  # fmt: skip
+SEQSLAM_WINDOWS = {"small": (5, 10, 20), "tiny": (10,)}
+
+
+# -- cost --------------------------------------------------------------------------------------
+def _us_per_update(filt: Any, rows: np.ndarray, repeats: int) -> float:
+    filt.update(rows[0])
+    start = time.perf_counter()
+    for k in range(repeats):
+        filt.update(rows[k % rows.shape[0]])
+    return 1e6 * (time.perf_counter() - start) / repeats
+
+
+def filter_cost(sizes: list[int], repeats: int) -> dict[str, Any]:
+    """Microseconds per frame of the HMM (default) and the SeqSLAM window filter, per ``N``."""
+    out: dict[str, Any] = {}
+    for n in sizes:
+        rows = np.random.default_rng(n).normal(size=(8, n))
+        old_repeats = max(3, repeats // 10)
+        new = _us_per_update(SequenceFilter(n), rows, repeats)
+        old = _us_per_update(SeqSLAMFilter(n, OLD_FILTER), rows, old_repeats)
+        out[str(n)] = {"hmm_us_per_frame": new, "seqslam_us_per_frame": old,
+                       "speedup": old / new, "hmm_state_bytes": SequenceFilter(n).nbytes,
+                       "hmm_speeds": int(SequenceFilter(n).speeds.size),
+                       "repeats": {"hmm": repeats, "seqslam": old_repeats}}  # fmt: skip
+    return out
+
+
+# -- drives and precision -------------------------------------------------------------------
+def validation_drives(n: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Frame positions of the tuning drives over a traversal of ``n`` frames (see module doc)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(3 * n)
+    wave = sum(np.sin(2 * np.pi * t / rng.uniform(150, 600) + rng.uniform(0, 2 * np.pi)) for _ in range(3))
+    varying = np.cumsum(1.2 + 0.6 * wave / np.abs(wave).max())
+    jump = n // 3
+    drives = {
+        "speed_1": np.arange(n, dtype=float),
+        "speed_0.7": np.arange(0, n - 1, 0.7),
+        "speed_1.5": np.arange(0, n - 1, 1.5),
+        "varying": varying[varying < n - 1],
+        "kidnap": np.concatenate([np.arange(jump), np.arange(jump + 500, n)]).astype(float),
+    }
+    return {k: np.rint(v).astype(np.int64) for k, v in drives.items()}
+
+
+def _precisions(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    return {str(t): precision_at(pred, truth, t) for t in TOLERANCES}
+
+
+def _methods(params: ModelParams) -> dict[str, PlaceRecognizer]:
+    return {"exact_nn": ExactNN(), "gridplace": build_model(params)}
+
+
+def _scores(split: str, ref: np.ndarray, qry: np.ndarray, params: ModelParams) -> dict[str, dict[str, Any]]:
+    lo, hi = SPLITS[split]
+    out = {}
+    for name, model in _methods(params).items():
+        start = time.perf_counter()
+        model.fit(ref[lo:hi])
+        fit_s = time.perf_counter() - start
+        out[name] = {"scores": model.frame_log_scores(qry[lo:hi]), "fit_seconds": fit_s,
+                     "footprint_bytes": model.footprint().actual_bytes}  # fmt: skip
+    return out
+
+
+def _candidates(grid: str) -> list[SequenceConfig]:
+    g = GRIDS[grid]
+    hmm = [SequenceConfig(**dict(zip(g, values, strict=True))) for values in itertools.product(*g.values())]
+    old = [OLD_FILTER.model_copy(update={"window": w}) for w in SEQSLAM_WINDOWS[grid]]
+    return hmm + old
+
+
+def tune(scores: dict[str, np.ndarray], grid: str) -> dict[str, Any]:
+    """Every candidate on every method × drive of split A; the best mean precision at ±5."""
+    drives = validation_drives(next(iter(scores.values())).shape[0])
+    rows = []
+    for config in _candidates(grid):
+        start = time.perf_counter()
+        result: dict[str, float] = {}
+        for (method, S), (drive, pos) in itertools.product(scores.items(), drives.items()):
+            result[f"{method}/{drive}"] = precision_at(filter_sequence(S[pos], config).index, pos, 5)
+        rows.append({"config": config.model_dump(), "precision_at_5": result,
+                     "mean": float(np.mean(list(result.values()))), "seconds": time.perf_counter() - start})  # fmt: skip
+        console.log(f"{config.method} {_short(config)}: mean {rows[-1]['mean']:.3f}")
+    best = max(rows, key=lambda r: r["mean"])
+    best_hmm = max((r for r in rows if r["config"]["method"] == "hmm"), key=lambda r: r["mean"])
+    return {"split": "A", "objective": "mean precision@5 over methods x drives",
+            "drives": {k: int(v.size) for k, v in drives.items()}, "candidates": rows,
+            "best": best["config"], "best_hmm": best_hmm["config"]}  # fmt: skip
+
+
+def _short(c: SequenceConfig) -> str:
+    if c.method == "seqslam":
+        return f"window={c.window}"
+    return f"scale={c.emission_scale} speed_change={c.speed_change} reloc={c.relocalization}"
+
+
+def _report(split: str, data: dict[str, dict[str, Any]], configs: dict[str, SequenceConfig]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for method, d in data.items():
+        S = d["scores"]
+        truth = np.arange(S.shape[0])
+        row: dict[str, Any] = {"single": _precisions(S.argmax(axis=1), truth),
+                               "footprint_bytes": d["footprint_bytes"], "fit_seconds": d["fit_seconds"]}  # fmt: skip
+        for label, config in configs.items():
+            start = time.perf_counter()
+            pred = filter_sequence(S, config).index
+            row[label] = _precisions(pred, truth)
+            row[f"{label}_us_per_frame"] = 1e6 * (time.perf_counter() - start) / S.shape[0]
+        out[method] = row
+    return out
+
+
+def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland: bool,
+                       params: ModelParams, out: Path) -> dict[str, Any]:  # fmt: skip
+    report: dict[str, Any] = {
+        "benchmark": "sequence",
+        "date": datetime.now(UTC).isoformat(),
+        "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
+        "default_filter": SequenceConfig().model_dump(),
+        "old_filter": OLD_FILTER.model_dump(),
+    }
+    with console.status("timing the filters…"):
+        report["filter_cost"] = filter_cost(sizes, repeats)
+    route = nordland() if with_nordland else None
+    if route is not None:
+        report["data"] = {"label": route.label, "splits": SPLITS, "tolerances": list(TOLERANCES),
+                          "gridplace_params": params.model_dump()}  # fmt: skip
+        data = {}
+        for s in SPLITS:
+            with console.status(f"fitting exact NN and gridplace on summer {s}…"):
+                data[s] = _scores(s, route.reference, route.query, params)
+        tuning = tune({m: d["scores"] for m, d in data["A"].items()}, grid)
+        report["tuning"] = tuning
+        configs = {"sequence_default": SequenceConfig(),
+                   "sequence_tuned": SequenceConfig(**tuning["best_hmm"]), "seqslam": OLD_FILTER}  # fmt: skip
+        report["default_is_tuned"] = configs["sequence_default"] == configs["sequence_tuned"]
+        report["precision"] = {s: _report(s, data[s], configs) for s in SPLITS}
+    _print(report)
+    out.write_text(json.dumps(report, indent=2))
+    console.print(f"wrote {out}")
+    return report
+
+
+def _print(r: dict[str, Any]) -> None:
+    t = Table(title="sequence filter: microseconds per frame (same run)")
+    for col in ("N", "HMM (default)", "SeqSLAM window 10", "speed-up"):
+        t.add_column(col)
+    for n, c in r["filter_cost"].items():
+        t.add_row(n, f"{c['hmm_us_per_frame']:.0f}", f"{c['seqslam_us_per_frame']:.0f}", f"{c['speedup']:.1f}×")
+    console.print(t)
+    if "precision" not in r:
+        console.print("(Nordland not found: precision skipped)")
+        return
+    console.print(f"tuned on A: {r['tuning']['best_hmm']}; default == tuned: {r['default_is_tuned']}")
+    t = Table(title=f"precision@5, {r['data']['label']} (summer map → winter drive)")
+    for col in ("split", "method", "single frame", "sequence (default)", "sequence (tuned on A)", "SeqSLAM w10"):
+        t.add_column(col)
+    for split, methods in r["precision"].items():
+        for method, row in methods.items():
+            t.add_row(split, method, *(f"{row[k]['5']:.3f}" for k in
+                                       ("single", "sequence_default", "sequence_tuned", "seqslam")))  # fmt: skip
+    console.print(t)

@@ -1,0 +1,81 @@
+"""``gridplace evaluate|localize --sequence`` on .npy files (SYNTHETIC): one run as a user runs
+it (a subprocess), the other cases through typer's runner in-process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from service.cli import app
+from service.encoding import PhaseEncoder, load_model, save_model
+from service.encoding.sequence import SequenceConfig, sequence_localize
+from service.encoding.synthetic import smooth_route
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+
+
+def invoke(*args: str | Path) -> tuple[int, str, str]:
+    res = CliRunner().invoke(app, [str(a) for a in args])
+    return res.exit_code, res.stdout, res.stderr
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("cli-seq")
+    route = smooth_route(300, 32, query_noise=1.0, seed=13)  # SYNTHETIC, noisy queries
+    np.save(root / "ref.npy", route.reference)
+    np.save(root / "query.npy", route.query)
+    np.save(root / "gt.npy", np.arange(300))
+    save_model(PhaseEncoder(trainer="ridge").fit(route.reference), root / "model")
+    return {"root": root, "model": root / "model", "query": root / "query.npy", "gt": root / "gt.npy"}
+
+
+def test_evaluate_sequence_adds_the_filter_precision(files: dict[str, Path]) -> None:
+    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "5", "--json")
+    assert code == 0
+    res = run("evaluate", files["model"], files["query"], "--tolerance", "5", "--json", "--sequence",
+              "--ground-truth", files["gt"])  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    base, out = json.loads(stdout), json.loads(res.stdout)
+    assert set(base) <= set(out) and out["precision"] == base["precision"]  # today's keys, same values
+    assert set(out["sequence_precision_at"]) == set(out["precision_at"])
+    assert out["sequence_precision"] == out["sequence_precision_at"]["5"]
+    assert out["sequence_precision"] > out["precision"] + 0.1, (out["precision"], out["sequence_precision"])
+    assert out["sequence"]["filter"] == SequenceConfig().model_dump()
+    assert out["sequence"]["seconds_per_frame"] > 0 and 0 <= out["sequence"]["mean_confidence"] <= 1
+    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "5", "--sequence")
+    assert code == 0 and "sequence precision@5" in stdout
+
+
+def test_localize_sequence_writes_the_filtered_indices(files: dict[str, Path]) -> None:
+    pred = files["root"] / "seq.npy"
+    code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence", "--out", pred,
+                             "--filter", "emission_scale=0.2", "--filter", "reverse=true")  # fmt: skip
+    assert code == 0, stderr
+    config = SequenceConfig(emission_scale=0.2, reverse=True)
+    want = sequence_localize(load_model(files["model"]), np.load(files["query"]), config).index
+    np.testing.assert_array_equal(np.load(pred), want)
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [(["--sequence", "--filter", "emission_scale=-1"], "emission_scale"),
+     (["--sequence", "--filter", "nonsense"], "KEY=VALUE"),
+     (["--sequence", "--filter", "speed=2"], "speed"),
+     (["--filter", "reverse=true"], "needs --sequence")],
+)  # fmt: skip
+def test_bad_filter_options_exit_2_naming_the_problem(files: dict[str, Path], args: list[str],
+                                                      needle: str) -> None:  # fmt: skip
+    for command in ("evaluate", "localize"):
+        code, stdout, stderr = invoke(command, files["model"], files["query"], *args)
+        assert code == 2, (command, stdout, stderr)
+        assert "invalid_parameter" in stderr and needle in stderr
