@@ -21,6 +21,7 @@ import json
 import os
 import platform
 import time
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -30,15 +31,16 @@ from rich.console import Console
 from rich.table import Table
 
 from service.bench.data import nordland
+from service.bench.seqslam_reference import SeqSLAMConfig, SeqSLAMFilter, seqslam_sequence
 from service.encoding import ExactNN, ModelParams, build_model
 from service.encoding.base import PlaceRecognizer, precision_at
-from service.encoding.seqslam import SeqSLAMFilter
-from service.encoding.sequence import SequenceConfig, SequenceFilter, filter_sequence
+from service.encoding.sequence import SequenceConfig, SequenceFilter, SequenceTrack, filter_sequence
 
 console = Console()
 SPLITS = {"A": (0, 1788), "B": (1788, 3576), "all": (0, 3576)}
 TOLERANCES = (0, 2, 5, 10)
-OLD_FILTER = SequenceConfig(method="seqslam", min_speed=0.0, max_speed=2.0, speed_step=0.25, window=10)
+OLD_FILTER = SeqSLAMConfig(window=10)
+Candidate = SequenceConfig | SeqSLAMConfig
 GRIDS: dict[str, dict[str, tuple[Any, ...]]] = {
     "small": {"emission_scale": (0.05, 0.1, 0.2), "speed_change": (0.003, 0.01, 0.03),
               "relocalization": (1e-4, 1e-3)},
@@ -109,11 +111,23 @@ def _scores(split: str, ref: np.ndarray, qry: np.ndarray, params: ModelParams) -
     return out
 
 
-def _candidates(grid: str) -> list[SequenceConfig]:
+def _candidates(grid: str) -> list[Candidate]:
     g = GRIDS[grid]
-    hmm = [SequenceConfig(**dict(zip(g, values, strict=True))) for values in itertools.product(*g.values())]
-    old = [OLD_FILTER.model_copy(update={"window": w}) for w in SEQSLAM_WINDOWS[grid]]
-    return hmm + old
+    hmm: list[Candidate] = [SequenceConfig(**dict(zip(g, values, strict=True)))
+                            for values in itertools.product(*g.values())]  # fmt: skip
+    return hmm + [SeqSLAMConfig(window=w) for w in SEQSLAM_WINDOWS[grid]]
+
+
+def _run(S: np.ndarray, config: Candidate) -> SequenceTrack:
+    if isinstance(config, SeqSLAMConfig):
+        return seqslam_sequence(S, config)
+    return filter_sequence(S, config)
+
+
+def _describe(config: Candidate) -> dict[str, Any]:
+    if isinstance(config, SeqSLAMConfig):
+        return {"method": "seqslam", **asdict(config)}
+    return {"method": "hmm", **config.model_dump()}
 
 
 def tune(scores: dict[str, np.ndarray], grid: str) -> dict[str, Any]:
@@ -124,24 +138,26 @@ def tune(scores: dict[str, np.ndarray], grid: str) -> dict[str, Any]:
         start = time.perf_counter()
         result: dict[str, float] = {}
         for (method, S), (drive, pos) in itertools.product(scores.items(), drives.items()):
-            result[f"{method}/{drive}"] = precision_at(filter_sequence(S[pos], config).index, pos, 5)
-        rows.append({"config": config.model_dump(), "precision_at_5": result,
+            result[f"{method}/{drive}"] = precision_at(_run(S[pos], config).index, pos, 5)
+        rows.append({"config": _describe(config), "precision_at_5": result,
                      "mean": float(np.mean(list(result.values()))), "seconds": time.perf_counter() - start})  # fmt: skip
-        console.log(f"{config.method} {_short(config)}: mean {rows[-1]['mean']:.3f}")
+        console.log(f"{_short(config)}: mean {rows[-1]['mean']:.3f}")
     best = max(rows, key=lambda r: r["mean"])
     best_hmm = max((r for r in rows if r["config"]["method"] == "hmm"), key=lambda r: r["mean"])
+    best_old = max((r for r in rows if r["config"]["method"] == "seqslam"), key=lambda r: r["mean"])
     return {"split": "A", "objective": "mean precision@5 over methods x drives",
             "drives": {k: int(v.size) for k, v in drives.items()}, "candidates": rows,
-            "best": best["config"], "best_hmm": best_hmm["config"]}  # fmt: skip
+            "best": best["config"], "best_hmm": best_hmm["config"],
+            "best_seqslam": best_old["config"]}  # fmt: skip
 
 
-def _short(c: SequenceConfig) -> str:
-    if c.method == "seqslam":
-        return f"window={c.window}"
-    return f"scale={c.emission_scale} speed_change={c.speed_change} reloc={c.relocalization}"
+def _short(c: Candidate) -> str:
+    if isinstance(c, SeqSLAMConfig):
+        return f"seqslam window={c.window}"
+    return f"hmm scale={c.emission_scale} speed_change={c.speed_change} reloc={c.relocalization}"
 
 
-def _report(split: str, data: dict[str, dict[str, Any]], configs: dict[str, SequenceConfig]) -> dict[str, Any]:
+def _report(data: dict[str, dict[str, Any]], configs: dict[str, Candidate]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for method, d in data.items():
         S = d["scores"]
@@ -150,7 +166,7 @@ def _report(split: str, data: dict[str, dict[str, Any]], configs: dict[str, Sequ
                                "footprint_bytes": d["footprint_bytes"], "fit_seconds": d["fit_seconds"]}  # fmt: skip
         for label, config in configs.items():
             start = time.perf_counter()
-            pred = filter_sequence(S, config).index
+            pred = _run(S, config).index
             row[label] = _precisions(pred, truth)
             row[f"{label}_us_per_frame"] = 1e6 * (time.perf_counter() - start) / S.shape[0]
         out[method] = row
@@ -164,7 +180,7 @@ def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland:
         "date": datetime.now(UTC).isoformat(),
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
         "default_filter": SequenceConfig().model_dump(),
-        "old_filter": OLD_FILTER.model_dump(),
+        "old_filter": _describe(OLD_FILTER),
     }
     with console.status("timing the filters…"):
         report["filter_cost"] = filter_cost(sizes, repeats)
@@ -178,10 +194,13 @@ def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland:
                 data[s] = _scores(s, route.reference, route.query, params)
         tuning = tune({m: d["scores"] for m, d in data["A"].items()}, grid)
         report["tuning"] = tuning
-        configs = {"sequence_default": SequenceConfig(),
-                   "sequence_tuned": SequenceConfig(**tuning["best_hmm"]), "seqslam": OLD_FILTER}  # fmt: skip
+        best_old = {k: v for k, v in tuning["best_seqslam"].items() if k != "method"}
+        tuned = {k: v for k, v in tuning["best_hmm"].items() if k != "method"}
+        configs: dict[str, Candidate] = {
+            "sequence_default": SequenceConfig(), "sequence_tuned": SequenceConfig(**tuned),
+            "seqslam": OLD_FILTER, "seqslam_tuned": SeqSLAMConfig(**best_old)}  # fmt: skip
         report["default_is_tuned"] = configs["sequence_default"] == configs["sequence_tuned"]
-        report["precision"] = {s: _report(s, data[s], configs) for s in SPLITS}
+        report["precision"] = {s: _report(data[s], configs) for s in SPLITS}
     _print(report)
     out.write_text(json.dumps(report, indent=2))
     console.print(f"wrote {out}")
@@ -200,10 +219,12 @@ def _print(r: dict[str, Any]) -> None:
         return
     console.print(f"tuned on A: {r['tuning']['best_hmm']}; default == tuned: {r['default_is_tuned']}")
     t = Table(title=f"precision@5, {r['data']['label']} (summer map → winter drive)")
-    for col in ("split", "method", "single frame", "sequence (default)", "sequence (tuned on A)", "SeqSLAM w10"):
+    for col in ("split", "method", "single frame", "HMM (default)", "HMM (tuned on A)", "SeqSLAM w10",
+                "SeqSLAM (tuned on A)"):  # fmt: skip
         t.add_column(col)
     for split, methods in r["precision"].items():
         for method, row in methods.items():
             t.add_row(split, method, *(f"{row[k]['5']:.3f}" for k in
-                                       ("single", "sequence_default", "sequence_tuned", "seqslam")))  # fmt: skip
+                                       ("single", "sequence_default", "sequence_tuned", "seqslam",
+                                        "seqslam_tuned")))  # fmt: skip
     console.print(t)

@@ -25,8 +25,7 @@ many frames came before): the posterior lives in linear space rescaled to sum 1 
 which is stable because the uniform jump keeps every predicted probability ``≥ ε/(S·N)``.
 
 The estimate is the frame with the largest posterior (speeds marginalised); its confidence is
-the posterior mass within ``confidence_radius`` frames of it. The SeqSLAM-style window filter
-(:mod:`service.encoding.seqslam`) stays available as ``method="seqslam"``.
+the posterior mass within ``confidence_radius`` frames of it.
 """
 
 from __future__ import annotations
@@ -34,7 +33,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -42,7 +41,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from service.errors import InvalidInputError, InvalidParameterError
 
 MAX_SPEEDS = 64  # grid speeds per direction
-MAX_SEQSLAM_WORK = 2000  # window × speeds of the seqslam filter (its cost per frame)
 _BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`
 
 
@@ -51,9 +49,6 @@ class SequenceConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    method: Literal["hmm", "seqslam"] = Field(
-        "hmm", description="hmm: recursive Bayes filter; seqslam: windowed trajectory score"
-    )
     min_speed: float = Field(0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame")
     max_speed: float = Field(2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame")
     speed_step: float = Field(0.25, gt=0.0, le=50.0, description="spacing of the speed grid")
@@ -74,7 +69,6 @@ class SequenceConfig(BaseModel):
     confidence_radius: int = Field(
         5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
     )
-    window: int = Field(10, ge=1, le=200, description="seqslam: query frames combined")
 
     @model_validator(mode="after")
     def _speeds(self) -> SequenceConfig:
@@ -85,12 +79,6 @@ class SequenceConfig(BaseModel):
             raise ValueError(
                 f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has {n} "
                 f"speeds; at most {MAX_SPEEDS} (raise speed_step)"
-            )
-        work = self.window * n * (2 if self.reverse else 1)
-        if self.method == "seqslam" and work > MAX_SEQSLAM_WORK:
-            raise ValueError(
-                f"seqslam re-scans window × speeds = {work} trajectories per frame; "
-                f"at most {MAX_SEQSLAM_WORK}"
             )
         return self
 
@@ -120,18 +108,7 @@ class SequenceEstimate:
     confidence: float  # posterior mass within ``confidence_radius`` frames of ``index``
     log_score: float  # log of ``confidence``
     frames_used: int  # query frames combined since the last reset
-    speed: float  # estimated speed, frames per query frame (seqslam: of the best trajectory)
-
-
-class FrameFilter(Protocol):
-    """What the service and the harness need of a sequence filter."""
-
-    n_frames: int
-    config: SequenceConfig
-
-    def update(self, frame_log_scores: np.ndarray) -> SequenceEstimate: ...
-
-    def reset(self) -> None: ...
+    speed: float  # posterior mean speed, frames per query frame
 
 
 def check_scores(scores: Any, n_frames: int) -> np.ndarray:
@@ -139,22 +116,30 @@ def check_scores(scores: Any, n_frames: int) -> np.ndarray:
     L = np.asarray(scores, dtype=np.float64)
     if L.shape != (n_frames,):
         raise InvalidInputError(f"expected {n_frames} frame scores, got shape {L.shape}")
-    if np.isnan(L).any() or np.isposinf(L).any():
-        raise InvalidInputError("frame scores contain NaN or +inf")
-    if not np.isfinite(L).any():
-        raise InvalidInputError("every frame score is -inf: the model scored no frame")
+    if not np.isfinite(L).all():  # one pass in the common case; the causes only when needed
+        if np.isnan(L).any() or np.isposinf(L).any():
+            raise InvalidInputError("frame scores contain NaN or +inf")
+        if not np.isfinite(L).any():
+            raise InvalidInputError("every frame score is -inf: the model scored no frame")
     return L
 
 
 def emission_log_likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray:
-    """Scaled log-likelihood of every frame, ``≤ 0`` with maximum ``0`` (see module doc)."""
-    finite = np.isfinite(L)
-    if not finite.all():
+    """Scaled log-likelihood of every frame, ``≤ 0`` with maximum ``0`` (see module doc);
+    ``L`` as :func:`check_scores` returns it."""
+    lo, hi = L.min(), L.max()
+    if np.isneginf(lo):  # frames the model did not score get its lowest score
+        finite = np.isfinite(L)
         L = np.where(finite, L, L[finite].min())
+    scale = config.emission_scale
     if config.emission == "zscore":
-        std = L.std()
-        L = (L - L.mean()) / std if std > 0 else np.zeros_like(L)
-    e = config.emission_scale * (L - L.max())
+        centred = L - L.mean()
+        std = float(np.sqrt(centred @ centred / L.size))
+        if not std > 0:
+            return np.zeros_like(L)
+        scale /= std
+    e = L - hi
+    e *= scale
     return e
 
 
@@ -185,8 +170,6 @@ class SequenceFilter:
             raise InvalidParameterError(f"a route has at least one frame, got {n_frames}")
         self.n_frames = int(n_frames)
         self.config = config or SequenceConfig()
-        if self.config.method != "hmm":
-            raise InvalidParameterError("SequenceFilter is the hmm method; use make_filter")
         v = self.config.speeds()
         self.speeds = v
         self._n_dir = v.size // 2 if self.config.reverse else v.size  # speeds per direction
@@ -227,7 +210,7 @@ class SequenceFilter:
     def update(self, frame_log_scores: np.ndarray) -> SequenceEstimate:
         """Fold in one query's frame log-scores ``(N,)`` and return the filtered estimate."""
         e = emission_log_likelihood(check_scores(frame_log_scores, self.n_frames), self.config)
-        lik = np.exp(e).astype(np.float32)[None, :]
+        lik = np.exp(e, out=e).astype(np.float32)[None, :]
         if self._frames:
             eps = self.config.relocalization
             pred = self._predict()  # sums to (at most) 1: mass driven off the route is gone
@@ -313,16 +296,6 @@ def _shift_add(
     dst[:, d] += tmp[:, d]
 
 
-def make_filter(n_frames: int, config: SequenceConfig | None = None) -> FrameFilter:
-    """The filter ``config.method`` names, for a route of ``n_frames`` frames."""
-    config = config or SequenceConfig()
-    if config.method == "seqslam":
-        from service.encoding.seqslam import SeqSLAMFilter
-
-        return SeqSLAMFilter(n_frames, config)
-    return SequenceFilter(n_frames, config)
-
-
 @dataclass(frozen=True)
 class SequenceTrack:
     """Per-frame answers of one drive (all arrays have one entry per query frame)."""
@@ -344,7 +317,7 @@ def filter_sequence(scores: np.ndarray, config: SequenceConfig | None = None) ->
     S = np.asarray(scores)
     if S.ndim != 2 or S.shape[0] == 0:
         raise InvalidInputError(f"expected frame scores of shape (T, N) with T >= 1, got {S.shape}")
-    filt = make_filter(S.shape[1], config)
+    filt = SequenceFilter(S.shape[1], config)
     return _run(filt, (S[t] for t in range(S.shape[0])), S.shape[0])
 
 
@@ -359,7 +332,7 @@ def sequence_localize(
     Q = np.asarray(queries)
     if Q.ndim != 2 or Q.shape[0] == 0:
         raise InvalidInputError(f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}")
-    filt = make_filter(int(model.n_frames_), config)
+    filt = SequenceFilter(int(model.n_frames_), config)
 
     def rows() -> Any:
         for s in range(0, Q.shape[0], block):
@@ -368,7 +341,7 @@ def sequence_localize(
     return _run(filt, rows(), Q.shape[0])
 
 
-def _run(filt: FrameFilter, rows: Any, n: int) -> SequenceTrack:
+def _run(filt: SequenceFilter, rows: Any, n: int) -> SequenceTrack:
     index = np.empty(n, dtype=np.int64)
     raw = np.empty(n, dtype=np.int64)
     conf = np.empty(n)

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from service.bench.seqslam_reference import SeqSLAMConfig, SeqSLAMFilter, seqslam_sequence
 from service.encoding import (
     ChunkedPlaceEncoder,
     ExactNN,
@@ -22,13 +23,11 @@ from service.encoding import (
     RhythmicEncoder,
     faiss_available,
 )
-from service.encoding.seqslam import SeqSLAMFilter
 from service.encoding.sequence import (
     SequenceConfig,
     SequenceFilter,
     emission_log_likelihood,
     filter_sequence,
-    make_filter,
     sequence_localize,
 )
 from service.encoding.synthetic import smooth_route
@@ -118,15 +117,15 @@ def test_a_chunked_model_minus_inf_frames_cannot_veto_the_track() -> None:
     assert np.all(np.abs(est[215:] - truth[215:]) <= 1)
 
 
-def test_seqslam_method_stays_available_by_name() -> None:
+def test_the_former_window_filter_is_beaten_on_a_noisy_drive() -> None:
+    """The benchmark's reference (the SeqSLAM window filter) helps, the HMM helps more."""
     truth = np.arange(N - 20)
     S = scores_along(truth, width=3.0, noise=1.5, seed=1)
-    config = SequenceConfig(method="seqslam", min_speed=0.0, window=10)
-    filt = make_filter(N, config)
-    assert isinstance(filt, SeqSLAMFilter)
-    est = track(S, config)
-    assert np.mean(np.abs(est - truth) <= 5) > np.mean(np.abs(S.argmax(axis=1) - truth) <= 5)
-    one = make_filter(N, SequenceConfig(method="seqslam", window=1))
+    single = np.mean(np.abs(S.argmax(axis=1) - truth) <= 5)
+    old = np.mean(np.abs(seqslam_sequence(S, SeqSLAMConfig(window=10)).index - truth) <= 5)
+    new = np.mean(np.abs(track(S) - truth) <= 5)
+    assert single < old < new, (single, old, new)
+    one = SeqSLAMFilter(N, SeqSLAMConfig(window=1))
     for row in S[:5]:
         assert one.update(row).index == int(row.argmax())
 
@@ -172,12 +171,13 @@ def test_cost_per_frame_does_not_grow_with_the_history() -> None:
     assert filt.nbytes == state == 4 * filt.speeds.size * N  # the state is the posterior alone
 
 
-def test_the_work_is_linear_in_the_route_not_in_the_window() -> None:
-    """The old window filter's calls grow with its window; the recursive filter has none."""
+def test_the_old_filter_rescans_its_window_the_new_one_makes_fixed_array_passes() -> None:
+    """The window filter's operations grow with its window; the recursive filter makes the
+    same operations (whole-array passes over its ``S × N`` state) for any route length."""
     row = scores_along([10.0])[0]
     grow = []
     for window in (2, 8):
-        old = make_filter(N, SequenceConfig(method="seqslam", window=window))
+        old = SeqSLAMFilter(N, SeqSLAMConfig(window=window))
         for _ in range(window):
             old.update(row)
         grow.append(_calls_per_update(old, row))  # type: ignore[arg-type]
@@ -257,8 +257,8 @@ def test_bad_rows_raise_clear_errors_and_leave_the_state() -> None:
     ("params", "match"),
     [({"max_speed": 0.2}, "below min_speed"), ({"speed_step": 0.001}, "at most 64"),
      ({"relocalization": 0.0}, "relocalization"), ({"emission_scale": -1.0}, "emission_scale"),
-     ({"method": "viterbi"}, "method"), ({"window": 0}, "window"), ({"bogus": 1}, "bogus"),
-     ({"method": "seqslam", "window": 200, "speed_step": 0.05}, "at most 2000")],
+     ({"emission": "softmax"}, "emission"), ({"confidence_radius": -1}, "confidence_radius"),
+     ({"bogus": 1}, "bogus")],
 )  # fmt: skip
 def test_invalid_configurations_are_named(params: dict[str, object], match: str) -> None:
     with pytest.raises(InvalidParameterError, match=match):

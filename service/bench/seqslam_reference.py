@@ -1,35 +1,55 @@
-"""The SeqSLAM-style window filter (kept by name: ``SequenceConfig(method="seqslam")``).
+"""The SeqSLAM-style window filter the service streamed with before the recursive Bayes filter
+of :mod:`service.encoding.sequence`. It is the benchmark's reference (its cost and precision
+beside the HMM's in one run, ``gridplace bench sequence``); it measured worse on every
+validation drive and is not served.
 
 In the spirit of SeqSLAM, a vehicle visits reference frames in order at some speed ``v``
 (reference frames per query frame). The filter keeps the last ``window`` queries' frame
 log-posteriors and scores each current position ``i`` and grid speed ``v`` by
 ``Σ_s L_{t−s}(i − v·s)``: a position is believed when the recent frames agree along a
 straight trajectory ending there. Each update re-scans the whole window at every speed, so it
-costs ``O(window · S · N)`` per frame (the HMM filter in :mod:`service.encoding.sequence`
-costs ``O(S · N)``).
+costs ``O(window · S · N)`` per frame (the HMM filter costs ``O(S · N)``).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
 
-from service.encoding.sequence import SequenceConfig, SequenceEstimate, check_scores
+from service.encoding.sequence import SequenceEstimate, SequenceTrack, check_scores
 from service.errors import InvalidParameterError
 
 _FLOOR = np.log(1e-9)  # a frame's vote for an index it finds impossible, so one frame cannot veto
 
 
+@dataclass(frozen=True)
+class SeqSLAMConfig:
+    """The service's former defaults were window 6 and speeds 0…2 (9 speeds); the issue's
+    figures used a 10-frame window."""
+
+    window: int = 10  # query frames combined (1 = no filtering)
+    min_speed: float = 0.0  # reference frames advanced per query frame
+    max_speed: float = 2.0
+    speed_step: float = 0.25
+
+    def speeds(self) -> np.ndarray:
+        if self.window < 1 or self.speed_step <= 0 or self.max_speed < self.min_speed:
+            raise InvalidParameterError(f"invalid SeqSLAM filter configuration {self}")
+        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
+        return self.min_speed + self.speed_step * np.arange(n)
+
+
 class SeqSLAMFilter:
     """One vehicle's window filter over a route of ``n_frames`` frames."""
 
-    def __init__(self, n_frames: int, config: SequenceConfig | None = None) -> None:
+    def __init__(self, n_frames: int, config: SeqSLAMConfig | None = None) -> None:
         if int(n_frames) < 1:
             raise InvalidParameterError(f"a route has at least one frame, got {n_frames}")
         self.n_frames = int(n_frames)
-        self.config = config or SequenceConfig(method="seqslam")
+        self.config = config or SeqSLAMConfig()
         self._velocities = self.config.speeds()
         self._history: deque[np.ndarray] = deque(maxlen=self.config.window)
 
@@ -61,3 +81,12 @@ class SeqSLAMFilter:
         log_conf = float(best_total[best] - logsumexp(best_total))
         return SequenceEstimate(best, float(np.exp(log_conf)), log_conf, len(self._history),
                                 float(best_speed[best]))  # fmt: skip
+
+
+def seqslam_sequence(scores: np.ndarray, config: SeqSLAMConfig | None = None) -> SequenceTrack:
+    """One fresh window filter over a drive's frame scores ``(T, N)``."""
+    filt = SeqSLAMFilter(scores.shape[1], config)
+    est = [filt.update(row) for row in scores]
+    return SequenceTrack(np.array([e.index for e in est], dtype=np.int64),
+                         np.array([e.confidence for e in est]), np.array([e.speed for e in est]),
+                         scores.argmax(axis=1).astype(np.int64))  # fmt: skip
