@@ -153,7 +153,7 @@ def evaluate(
         seq = result["sequence"]
         console.print(
             f"sequence precision@{tolerance}: {result['sequence_precision']:.4f} "
-            f"(filter {config.method}, {seq['seconds_per_frame'] * 1e6:.0f} µs/frame)"
+            f"(the queries as one drive; {seq['seconds_per_frame'] * 1e6:.0f} µs/frame)"
         )
 
 
