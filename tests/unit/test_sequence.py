@@ -119,13 +119,13 @@ def test_a_chunked_model_minus_inf_frames_cannot_veto_the_track() -> None:
 
 def test_the_former_window_filter_is_beaten_on_a_noisy_drive() -> None:
     """The benchmark's reference (the SeqSLAM window filter) helps, the HMM helps more."""
-    truth = np.arange(N - 20)
-    S = scores_along(truth, width=3.0, noise=1.5, seed=1)
+    truth = np.arange(200)
+    S = scores_along(truth, n=300, width=3.0, noise=1.5, seed=1)
     single = np.mean(np.abs(S.argmax(axis=1) - truth) <= 5)
-    old = np.mean(np.abs(seqslam_sequence(S, SeqSLAMConfig(window=10)).index - truth) <= 5)
+    old = np.mean(np.abs(seqslam_sequence(S, SeqSLAMConfig(window=6)).index - truth) <= 5)
     new = np.mean(np.abs(track(S) - truth) <= 5)
     assert single < old < new, (single, old, new)
-    one = SeqSLAMFilter(N, SeqSLAMConfig(window=1))
+    one = SeqSLAMFilter(300, SeqSLAMConfig(window=1))
     for row in S[:5]:
         assert one.update(row).index == int(row.argmax())
 
@@ -189,10 +189,11 @@ def test_the_old_filter_rescans_its_window_the_new_one_makes_fixed_array_passes(
 
 
 # -- properties ----------------------------------------------------------------------------
-rows = st.lists(
-    st.one_of(st.floats(-50, 50, allow_nan=False, allow_infinity=False), st.just(-np.inf)),
-    min_size=12, max_size=12,
-).filter(lambda r: np.isfinite(r).any())  # fmt: skip
+# scores on a 0.001 grid: an added constant must not erase their differences in float64
+scores = st.integers(-50_000, 50_000).map(lambda k: k / 1000.0)
+rows = st.lists(st.one_of(scores, st.just(-np.inf)), min_size=12, max_size=12).filter(
+    lambda r: np.isfinite(r).any()
+)
 
 
 @settings(max_examples=60, deadline=None)
@@ -278,7 +279,7 @@ def test_bad_drives_and_routes() -> None:
 # -- every model gives frame scores consistent with its answers ------------------------------
 @pytest.fixture(scope="module")
 def route():
-    return smooth_route(600, 32, query_noise=0.6, seed=5)  # SYNTHETIC
+    return smooth_route(320, 32, query_noise=0.6, seed=5)  # SYNTHETIC
 
 
 MODELS: list[Callable[[], object]] = [
@@ -288,18 +289,18 @@ MODELS: list[Callable[[], object]] = [
     lambda: RhythmicEncoder(trainer="ridge"),
 ]
 if faiss_available():
-    MODELS.append(lambda: PQIndex(n_subquantizers=8))
+    MODELS.append(lambda: PQIndex(n_subquantizers=4))
 
 
 @pytest.mark.parametrize("make", MODELS)
 def test_every_model_scores_every_frame_and_filters_a_drive(make, route) -> None:
     model = make().fit(route.reference)  # type: ignore[attr-defined]
     S = model.frame_log_scores(route.query)
-    assert S.shape == (600, 600) and not np.isnan(S).any()
+    assert S.shape == (320, 320) and not np.isnan(S).any()
     np.testing.assert_array_equal(S.argmax(axis=1), model.localize(route.query).index)
     drive = sequence_localize(model, route.query, block=50)  # blocks do not change the answers
     whole = filter_sequence(S)
     np.testing.assert_array_equal(drive.index, whole.index)
     np.testing.assert_array_equal(drive.raw_index, S.argmax(axis=1))
-    truth = np.arange(600)
+    truth = np.arange(320)
     assert np.mean(np.abs(drive.index - truth) <= 5) >= np.mean(np.abs(drive.raw_index - truth) <= 5)
