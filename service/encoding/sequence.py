@@ -43,6 +43,7 @@ from service.errors import InvalidInputError, InvalidParameterError
 MAX_SPEEDS = 64  # grid speeds per direction
 _BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`
 _FLAT = 1e-10  # a row whose spread is below this fraction of its magnitude is flat
+_MIN_LOG_LIKELIHOOD = -60.0  # one frame shrinks a state by at most e⁻⁶⁰ (float32 stays normal)
 
 
 class SequenceConfig(BaseModel):
@@ -139,12 +140,13 @@ def emission_log_likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray
     if config.emission == "zscore":
         mean = L.mean()
         centred = L - mean
-        std = float(np.sqrt(centred @ centred / L.size))
+        std = float(np.sqrt(np.square(centred, out=centred).mean()))  # no BLAS call: no threads
         if not std > _FLAT * max(abs(float(hi)), abs(float(mean))):
             return np.zeros_like(L)  # a flat row (up to float rounding) carries no evidence
         scale /= std
     e = L - hi
     e *= scale
+    np.maximum(e, _MIN_LOG_LIKELIHOOD, out=e)  # no float32 denormals downstream
     return e
 
 
@@ -219,7 +221,7 @@ class SequenceFilter:
         if self._frames:
             eps = self.config.relocalization
             pred = self._predict()  # sums to (at most) 1: mass driven off the route is gone
-            pred += eps / ((1.0 - eps) * pred.size)  # the uniform jump, up to the factor 1 − ε
+            pred += np.float32(eps / ((1.0 - eps) * pred.size))  # the uniform jump, up to 1 − ε
             np.multiply(pred, lik, out=self._post)
         else:
             self._post *= lik
@@ -242,7 +244,7 @@ class SequenceFilter:
         """``out = scale ·`` (speed random walk on each direction's grid with reflecting ends,
         then direction flips); ``tmp`` is scratch, ``post`` is left as it was."""
         q = self.config.speed_change
-        np.multiply(post, scale * (1.0 - q), out=out)
+        np.multiply(post, np.float32(scale * (1.0 - q)), out=out)  # float32 scalars: float32 loops
         h = np.float32(0.5 * q * scale)
         n = self._n_dir
         if q > 0:
@@ -255,7 +257,8 @@ class SequenceFilter:
                     dst[0] += src[0]  # reflect: the missing neighbour's share stays
                     dst[-1] += src[-1]
                 else:
-                    dst += 2 * src
+                    dst += src
+                    dst += src
         if self.config.reverse:
             r = self.config.direction_change
             np.multiply(out[::-1], np.float32(r), out=tmp)  # speed v ↔ −v: the grid is mirrored

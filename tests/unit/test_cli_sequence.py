@@ -79,3 +79,29 @@ def test_bad_filter_options_exit_2_naming_the_problem(files: dict[str, Path], ar
         code, stdout, stderr = invoke(command, files["model"], files["query"], *args)
         assert code == 2, (command, stdout, stderr)
         assert "invalid_parameter" in stderr and needle in stderr
+
+
+def test_bench_sequence_smoke(tmp_path: Path) -> None:
+    """A tiny run of ``gridplace bench sequence`` (cost only) writes its JSON."""
+    out = tmp_path / "bench.json"
+    code, stdout, stderr = invoke("bench", "sequence", "--sizes", "300", "--repeats", "3",
+                                  "--no-nordland", "--out", out)  # fmt: skip
+    assert code == 0, stderr
+    cost = json.loads(out.read_text())["filter_cost"]["300"]
+    assert cost["hmm"]["cpu_us"] > 0 and cost["seqslam"]["wall_us"] > 0 and cost["hmm_speeds"] == 7
+    assert "speed-up" in stdout
+
+
+def test_bench_tuning_picks_the_best_candidate_on_the_drives() -> None:
+    from service.bench.sequence_bench import tune, validation_drives
+
+    drives = validation_drives(300)
+    assert set(drives) == {"speed_1", "speed_0.7", "speed_1.5", "varying", "kidnap"}
+    for pos in drives.values():
+        assert pos.min() >= 0 and pos.max() < 300 and pos.size > 100
+    route = smooth_route(300, 24, query_noise=0.8, seed=2)  # SYNTHETIC
+    S = PhaseEncoder(trainer="ridge").fit(route.reference).frame_log_scores(route.query)
+    result = tune({"gridplace": S}, "tiny")
+    means = {r["config"]["method"]: r["mean"] for r in result["candidates"]}
+    assert result["best"]["method"] == max(means, key=means.get)  # type: ignore[arg-type]
+    assert set(result["drives"]) == set(drives) and result["split"] == "A"
