@@ -60,11 +60,19 @@ class SequenceLocalizeResponse(BaseModel):
 
     @classmethod
     def of(cls, r: SequenceResult) -> SequenceLocalizeResponse:
-        return cls(map=r.map, version=r.version, n=len(r), index=r.index.tolist(),
-                   chunk=r.chunk.tolist(), confidence=r.confidence.tolist(),
-                   speed=r.speed.tolist(), raw_index=r.raw_index.tolist(),
-                   raw_confidence=r.raw_confidence.tolist(), filter=r.config,
-                   latency_ms=r.latency_ms)  # fmt: skip
+        return cls(
+            map=r.map,
+            version=r.version,
+            n=len(r),
+            index=r.index.tolist(),
+            chunk=r.chunk.tolist(),
+            confidence=r.confidence.tolist(),
+            speed=r.speed.tolist(),
+            raw_index=r.raw_index.tolist(),
+            raw_confidence=r.raw_confidence.tolist(),
+            filter=r.config,
+            latency_ms=r.latency_ms,
+        )
 
 
 def _query_filter(request: Request) -> dict[str, str]:
@@ -74,18 +82,28 @@ def _query_filter(request: Request) -> dict[str, str]:
     if unknown:
         raise InvalidInputError(
             f"unknown query parameter(s) {', '.join(unknown)}; filter parameters are "
-            f"{', '.join(FILTER_PARAMS)}", unknown=unknown,
-        )  # fmt: skip
+            f"{', '.join(FILTER_PARAMS)}",
+            unknown=unknown,
+        )
     return given
 
 
 def _filter_doc() -> list[dict[str, Any]]:
     schema = SequenceConfig.model_json_schema()["properties"]
-    return [{"name": k, "in": "query", "required": False,
-             "description": f"{v.get('description', '')} (default {v.get('default')})",
-             "schema": {key: v[key] for key in ("type", "enum", "minimum", "maximum",
-                                                "exclusiveMinimum") if key in v}}
-            for k, v in schema.items()]  # fmt: skip
+    return [
+        {
+            "name": k,
+            "in": "query",
+            "required": False,
+            "description": f"{v.get('description', '')} (default {v.get('default')})",
+            "schema": {
+                key: v[key]
+                for key in ("type", "enum", "minimum", "maximum", "exclusiveMinimum")
+                if key in v
+            },
+        }
+        for k, v in schema.items()
+    ]
 
 
 _DOC = _body_doc(SequenceLocalizeRequest, _IMAGES_FORM, binary=True)
@@ -102,7 +120,9 @@ _DOC["parameters"] = _filter_doc()
 async def localize_sequence(
     request: Request,
     map_q: Annotated[str | None, Query(alias="map", description="map (binary bodies)")] = None,
-    d_q: Annotated[int | None, Query(alias="d", ge=1, description="descriptor size (binary)")] = None,
+    d_q: Annotated[
+        int | None, Query(alias="d", ge=1, description="descriptor size (binary)")
+    ] = None,
     map_h: Annotated[str | None, Header(alias="X-Gridplace-Map")] = None,
     d_h: Annotated[int | None, Header(alias="X-Gridplace-Dim", ge=1)] = None,
 ) -> SequenceLocalizeResponse:
@@ -116,7 +136,8 @@ async def localize_sequence(
         name = map_q or map_h
         if not name:
             raise InvalidInputError(
-                "binary sequences need the map as ?map=NAME or an X-Gridplace-Map header", field="map"
+                "binary sequences need the map as ?map=NAME or an X-Gridplace-Map header",
+                field="map",
             )
         body = await request.body()
         result = await run_in_threadpool(
@@ -124,7 +145,9 @@ async def localize_sequence(
         )
     elif ctype.startswith("multipart/form-data"):
         name, images = await _form(request)
-        result = await run_in_threadpool(localizer.localize_images, name, images, SequenceConfig(**query))
+        result = await run_in_threadpool(
+            localizer.localize_images, name, images, SequenceConfig(**query)
+        )
     else:
         req = SequenceLocalizeRequest.model_validate_json(await _json_body(request))
         if req.filter is not None and query:
@@ -140,10 +163,14 @@ def _localize_drive(
     localizer: SequenceLocalizer, req: SequenceLocalizeRequest, config: SequenceConfig
 ) -> SequenceResult:
     if req.images_b64 is not None:
-        blobs = [(f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)]
+        blobs = [
+            (f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)
+        ]
         return localizer.localize_images(req.map, blobs, config)
     if req.descriptors_b64 is not None:
-        return localizer.localize_bytes(req.map, _b64(req.descriptors_b64, "descriptors_b64"), None, config)
+        return localizer.localize_bytes(
+            req.map, _b64(req.descriptors_b64, "descriptors_b64"), None, config
+        )
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")

@@ -79,14 +79,18 @@ class SeqSLAMFilter:
             best_speed[better] = v
         best = int(np.argmax(best_total))
         log_conf = float(best_total[best] - logsumexp(best_total))
-        return SequenceEstimate(best, float(np.exp(log_conf)), log_conf, len(self._history),
-                                float(best_speed[best]))  # fmt: skip
+        return SequenceEstimate(
+            best, float(np.exp(log_conf)), log_conf, len(self._history), float(best_speed[best])
+        )
 
 
 def seqslam_sequence(scores: np.ndarray, config: SeqSLAMConfig | None = None) -> SequenceTrack:
     """One fresh window filter over a drive's frame scores ``(T, N)``."""
     filt = SeqSLAMFilter(scores.shape[1], config)
     est = [filt.update(row) for row in scores]
-    return SequenceTrack(np.array([e.index for e in est], dtype=np.int64),
-                         np.array([e.confidence for e in est]), np.array([e.speed for e in est]),
-                         scores.argmax(axis=1).astype(np.int64))  # fmt: skip
+    return SequenceTrack(
+        np.array([e.index for e in est], dtype=np.int64),
+        np.array([e.confidence for e in est]),
+        np.array([e.speed for e in est]),
+        scores.argmax(axis=1).astype(np.int64),
+    )

@@ -10,8 +10,9 @@ precision on Nordland (exact NN and gridplace on the same descriptors), in one r
   winter frames. Tuning drives on A are the winter traversal driven at different speeds:
   ``speed_1`` (the traversal as recorded), ``speed_0.7``, ``speed_1.5``, a smoothly
   ``varying`` speed in [0.6, 1.8], and a ``kidnap`` (after a third of the drive the vehicle
-  is moved 500 frames ahead). The configuration with the best mean precision at ±5 frames over every method
-  and drive wins; B and the whole route are then reported at speed 1 without re-tuning.
+  is moved 500 frames ahead). The configuration with the best mean precision at ±5 frames
+  over every method and drive wins; B and the whole route are then reported at speed 1
+  without re-tuning.
 """
 
 from __future__ import annotations
@@ -42,10 +43,13 @@ TOLERANCES = (0, 2, 5, 10)
 OLD_FILTER = SeqSLAMConfig(window=10)
 Candidate = SequenceConfig | SeqSLAMConfig
 GRIDS: dict[str, dict[str, tuple[Any, ...]]] = {
-    "small": {"emission_scale": (0.05, 0.1, 0.2), "speed_change": (0.003, 0.01, 0.03),
-              "relocalization": (1e-4, 1e-3)},
+    "small": {
+        "emission_scale": (0.05, 0.1, 0.2),
+        "speed_change": (0.003, 0.01, 0.03),
+        "relocalization": (1e-4, 1e-3),
+    },
     "tiny": {"emission_scale": (0.1,), "speed_change": (0.01,), "relocalization": (1e-3,)},
-}  # fmt: skip
+}
 SEQSLAM_WINDOWS = {"small": (5, 10, 20), "tiny": (10,)}
 
 
@@ -56,8 +60,10 @@ def _us_per_update(filt: Any, rows: np.ndarray, repeats: int) -> dict[str, float
     wall, cpu = time.perf_counter(), time.process_time()
     for k in range(repeats):
         filt.update(rows[k % rows.shape[0]])
-    return {"wall_us": 1e6 * (time.perf_counter() - wall) / repeats,
-            "cpu_us": 1e6 * (time.process_time() - cpu) / repeats}  # fmt: skip
+    return {
+        "wall_us": 1e6 * (time.perf_counter() - wall) / repeats,
+        "cpu_us": 1e6 * (time.process_time() - cpu) / repeats,
+    }
 
 
 def filter_cost(sizes: list[int], repeats: int) -> dict[str, Any]:
@@ -69,10 +75,15 @@ def filter_cost(sizes: list[int], repeats: int) -> dict[str, Any]:
         hmm = SequenceFilter(n)
         new = _us_per_update(hmm, rows, repeats)
         old = _us_per_update(SeqSLAMFilter(n, OLD_FILTER), rows, old_repeats)
-        out[str(n)] = {"hmm": new, "seqslam": old, "speedup_cpu": old["cpu_us"] / new["cpu_us"],
-                       "speedup_wall": old["wall_us"] / new["wall_us"], "hmm_state_bytes": hmm.nbytes,
-                       "hmm_speeds": int(hmm.speeds.size),
-                       "repeats": {"hmm": repeats, "seqslam": old_repeats}}  # fmt: skip
+        out[str(n)] = {
+            "hmm": new,
+            "seqslam": old,
+            "speedup_cpu": old["cpu_us"] / new["cpu_us"],
+            "speedup_wall": old["wall_us"] / new["wall_us"],
+            "hmm_state_bytes": hmm.nbytes,
+            "hmm_speeds": int(hmm.speeds.size),
+            "repeats": {"hmm": repeats, "seqslam": old_repeats},
+        }
     return out
 
 
@@ -81,7 +92,9 @@ def validation_drives(n: int, seed: int = 0) -> dict[str, np.ndarray]:
     """Frame positions of the tuning drives over a traversal of ``n`` frames (see module doc)."""
     rng = np.random.default_rng(seed)
     t = np.arange(3 * n)
-    wave = sum(np.sin(2 * np.pi * t / rng.uniform(150, 600) + rng.uniform(0, 2 * np.pi)) for _ in range(3))
+    wave = sum(
+        np.sin(2 * np.pi * t / rng.uniform(150, 600) + rng.uniform(0, 2 * np.pi)) for _ in range(3)
+    )
     varying = np.cumsum(1.2 + 0.6 * wave / np.abs(wave).max())
     jump, gap = n // 3, min(500, n // 3)  # moved ``gap`` frames ahead after a third of the drive
     drives = {
@@ -102,22 +115,29 @@ def _methods(params: ModelParams) -> dict[str, PlaceRecognizer]:
     return {"exact_nn": ExactNN(), "gridplace": build_model(params)}
 
 
-def _scores(split: str, ref: np.ndarray, qry: np.ndarray, params: ModelParams) -> dict[str, dict[str, Any]]:
+def _scores(
+    split: str, ref: np.ndarray, qry: np.ndarray, params: ModelParams
+) -> dict[str, dict[str, Any]]:
     lo, hi = SPLITS[split]
     out = {}
     for name, model in _methods(params).items():
         start = time.perf_counter()
         model.fit(ref[lo:hi])
         fit_s = time.perf_counter() - start
-        out[name] = {"scores": model.frame_log_scores(qry[lo:hi]), "fit_seconds": fit_s,
-                     "footprint_bytes": model.footprint().actual_bytes}  # fmt: skip
+        out[name] = {
+            "scores": model.frame_log_scores(qry[lo:hi]),
+            "fit_seconds": fit_s,
+            "footprint_bytes": model.footprint().actual_bytes,
+        }
     return out
 
 
 def _candidates(grid: str) -> list[Candidate]:
     g = GRIDS[grid]
-    hmm: list[Candidate] = [SequenceConfig(**dict(zip(g, values, strict=True)))
-                            for values in itertools.product(*g.values())]  # fmt: skip
+    hmm: list[Candidate] = [
+        SequenceConfig(**dict(zip(g, values, strict=True)))
+        for values in itertools.product(*g.values())
+    ]
     return hmm + [SeqSLAMConfig(window=w) for w in SEQSLAM_WINDOWS[grid]]
 
 
@@ -142,16 +162,27 @@ def tune(scores: dict[str, np.ndarray], grid: str) -> dict[str, Any]:
         result: dict[str, float] = {}
         for (method, S), (drive, pos) in itertools.product(scores.items(), drives.items()):
             result[f"{method}/{drive}"] = precision_at(_run(S[pos], config).index, pos, 5)
-        rows.append({"config": _describe(config), "precision_at_5": result,
-                     "mean": float(np.mean(list(result.values()))), "seconds": time.perf_counter() - start})  # fmt: skip
+        rows.append(
+            {
+                "config": _describe(config),
+                "precision_at_5": result,
+                "mean": float(np.mean(list(result.values()))),
+                "seconds": time.perf_counter() - start,
+            }
+        )
         console.log(f"{_short(config)}: mean {rows[-1]['mean']:.3f}")
     best = max(rows, key=lambda r: r["mean"])
     best_hmm = max((r for r in rows if r["config"]["method"] == "hmm"), key=lambda r: r["mean"])
     best_old = max((r for r in rows if r["config"]["method"] == "seqslam"), key=lambda r: r["mean"])
-    return {"split": "A", "objective": "mean precision@5 over methods x drives",
-            "drives": {k: int(v.size) for k, v in drives.items()}, "candidates": rows,
-            "best": best["config"], "best_hmm": best_hmm["config"],
-            "best_seqslam": best_old["config"]}  # fmt: skip
+    return {
+        "split": "A",
+        "objective": "mean precision@5 over methods x drives",
+        "drives": {k: int(v.size) for k, v in drives.items()},
+        "candidates": rows,
+        "best": best["config"],
+        "best_hmm": best_hmm["config"],
+        "best_seqslam": best_old["config"],
+    }
 
 
 def _short(c: Candidate) -> str:
@@ -165,8 +196,11 @@ def _report(data: dict[str, dict[str, Any]], configs: dict[str, Candidate]) -> d
     for method, d in data.items():
         S = d["scores"]
         truth = np.arange(S.shape[0])
-        row: dict[str, Any] = {"single": _precisions(S.argmax(axis=1), truth),
-                               "footprint_bytes": d["footprint_bytes"], "fit_seconds": d["fit_seconds"]}  # fmt: skip
+        row: dict[str, Any] = {
+            "single": _precisions(S.argmax(axis=1), truth),
+            "footprint_bytes": d["footprint_bytes"],
+            "fit_seconds": d["fit_seconds"],
+        }
         for label, config in configs.items():
             start = time.perf_counter()
             pred = _run(S, config).index
@@ -176,8 +210,9 @@ def _report(data: dict[str, dict[str, Any]], configs: dict[str, Candidate]) -> d
     return out
 
 
-def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland: bool,
-                       params: ModelParams, out: Path) -> dict[str, Any]:  # fmt: skip
+def run_sequence_bench(
+    sizes: list[int], repeats: int, grid: str, with_nordland: bool, params: ModelParams, out: Path
+) -> dict[str, Any]:
     report: dict[str, Any] = {
         "benchmark": "sequence",
         "date": datetime.now(UTC).isoformat(),
@@ -189,8 +224,12 @@ def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland:
         report["filter_cost"] = filter_cost(sizes, repeats)
     route = nordland() if with_nordland else None
     if route is not None:
-        report["data"] = {"label": route.label, "splits": SPLITS, "tolerances": list(TOLERANCES),
-                          "gridplace_params": params.model_dump()}  # fmt: skip
+        report["data"] = {
+            "label": route.label,
+            "splits": SPLITS,
+            "tolerances": list(TOLERANCES),
+            "gridplace_params": params.model_dump(),
+        }
         data = {}
         for s in SPLITS:
             with console.status(f"fitting exact NN and gridplace on summer {s}…"):
@@ -200,8 +239,11 @@ def run_sequence_bench(sizes: list[int], repeats: int, grid: str, with_nordland:
         best_old = {k: v for k, v in tuning["best_seqslam"].items() if k != "method"}
         tuned = {k: v for k, v in tuning["best_hmm"].items() if k != "method"}
         configs: dict[str, Candidate] = {
-            "sequence_default": SequenceConfig(), "sequence_tuned": SequenceConfig(**tuned),
-            "seqslam": OLD_FILTER, "seqslam_tuned": SeqSLAMConfig(**best_old)}  # fmt: skip
+            "sequence_default": SequenceConfig(),
+            "sequence_tuned": SequenceConfig(**tuned),
+            "seqslam": OLD_FILTER,
+            "seqslam_tuned": SeqSLAMConfig(**best_old),
+        }
         report["default_is_tuned"] = configs["sequence_default"] == configs["sequence_tuned"]
         report["precision"] = {s: _report(data[s], configs) for s in SPLITS}
     _print(report)
@@ -216,20 +258,44 @@ def _print(r: dict[str, Any]) -> None:
         t.add_column(col)
     for n, c in r["filter_cost"].items():
         h, o = c["hmm"], c["seqslam"]
-        t.add_row(n, f"{h['cpu_us']:.0f} ({h['wall_us']:.0f})", f"{o['cpu_us']:.0f} ({o['wall_us']:.0f})",
-                  f"{c['speedup_cpu']:.1f}×")  # fmt: skip
+        t.add_row(
+            n,
+            f"{h['cpu_us']:.0f} ({h['wall_us']:.0f})",
+            f"{o['cpu_us']:.0f} ({o['wall_us']:.0f})",
+            f"{c['speedup_cpu']:.1f}×",
+        )
     console.print(t)
     if "precision" not in r:
         console.print("(Nordland not found: precision skipped)")
         return
-    console.print(f"tuned on A: {r['tuning']['best_hmm']}; default == tuned: {r['default_is_tuned']}")
+    console.print(
+        f"tuned on A: {r['tuning']['best_hmm']}; default == tuned: {r['default_is_tuned']}"
+    )
     t = Table(title=f"precision@5, {r['data']['label']} (summer map → winter drive)")
-    for col in ("split", "method", "single frame", "HMM (default)", "HMM (tuned on A)", "SeqSLAM w10",
-                "SeqSLAM (tuned on A)"):  # fmt: skip
+    for col in (
+        "split",
+        "method",
+        "single frame",
+        "HMM (default)",
+        "HMM (tuned on A)",
+        "SeqSLAM w10",
+        "SeqSLAM (tuned on A)",
+    ):
         t.add_column(col)
     for split, methods in r["precision"].items():
         for method, row in methods.items():
-            t.add_row(split, method, *(f"{row[k]['5']:.3f}" for k in
-                                       ("single", "sequence_default", "sequence_tuned", "seqslam",
-                                        "seqslam_tuned")))  # fmt: skip
+            t.add_row(
+                split,
+                method,
+                *(
+                    f"{row[k]['5']:.3f}"
+                    for k in (
+                        "single",
+                        "sequence_default",
+                        "sequence_tuned",
+                        "seqslam",
+                        "seqslam_tuned",
+                    )
+                ),
+            )
     console.print(t)

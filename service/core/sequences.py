@@ -92,13 +92,20 @@ class SequenceLocalizer:
         if Q.shape[0] > MAX_SEQUENCE_FRAMES:
             raise InvalidInputError(
                 f"a sequence holds at most {MAX_SEQUENCE_FRAMES} frames, got {Q.shape[0]}",
-                limit=MAX_SEQUENCE_FRAMES, got=int(Q.shape[0]),
-            )  # fmt: skip
+                limit=MAX_SEQUENCE_FRAMES,
+                got=int(Q.shape[0]),
+            )
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
         track = sequence_localize(loaded.model, Q, config)
         return SequenceResult(
-            loaded.map, loaded.version, track.index, chunk_of(loaded, track.index),
-            track.confidence, track.speed, raw.index, raw.confidence, config,
+            loaded.map,
+            loaded.version,
+            track.index,
+            chunk_of(loaded, track.index),
+            track.confidence,
+            track.speed,
+            raw.index,
+            raw.confidence,
+            config,
             (time.perf_counter() - start) * 1000.0,
-        )  # fmt: skip
-
+        )

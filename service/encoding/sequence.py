@@ -54,8 +54,12 @@ class SequenceConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    min_speed: float = Field(0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame")
-    max_speed: float = Field(2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame")
+    min_speed: float = Field(
+        0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame"
+    )
+    max_speed: float = Field(
+        2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame"
+    )
     speed_step: float = Field(0.25, gt=0.0, le=50.0, description="spacing of the speed grid")
     speed_change: float = Field(
         0.01, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
@@ -94,7 +98,8 @@ class SequenceConfig(BaseModel):
             return cls(**kwargs)
         except ValidationError as exc:
             msgs = "; ".join(
-                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}" for e in exc.errors()
+                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}"
+                for e in exc.errors()
             )
             raise InvalidParameterError(f"invalid sequence filter parameters: {msgs}") from exc
 
@@ -184,10 +189,16 @@ class SequenceFilter:
         frac = (v - whole).astype(np.float32)
         # rows that share the integer part of their speed are shifted by one slice operation
         self._groups = [
-            (int(a), slice(int(idx[0]), int(idx[-1]) + 1), (1 - frac[idx])[:, None],
-             frac[idx][:, None], bool(frac[idx].any()))
-            for a in np.unique(whole) for idx in [np.flatnonzero(whole == a)]
-        ]  # fmt: skip
+            (
+                int(a),
+                slice(int(idx[0]), int(idx[-1]) + 1),
+                (1 - frac[idx])[:, None],
+                frac[idx][:, None],
+                bool(frac[idx].any()),
+            )
+            for a in np.unique(whole)
+            for idx in [np.flatnonzero(whole == a)]
+        ]
         self._post = np.empty((v.size, self.n_frames), dtype=np.float32)
         self.reset()
 
@@ -240,7 +251,9 @@ class SequenceFilter:
                 _shift_add(pred[rows], mixed[rows], a + 1, move, scratch[rows], N)
         return pred
 
-    def _change_speed(self, post: np.ndarray, out: np.ndarray, tmp: np.ndarray, scale: float) -> None:
+    def _change_speed(
+        self, post: np.ndarray, out: np.ndarray, tmp: np.ndarray, scale: float
+    ) -> None:
         """``out = scale ·`` (speed random walk on each direction's grid with reflecting ends,
         then direction flips); ``tmp`` is scratch, ``post`` is left as it was."""
         q = self.config.speed_change
@@ -339,7 +352,9 @@ def sequence_localize(
         raise InvalidParameterError(f"{type(model).__name__} gives no frame scores")
     Q = np.asarray(queries)
     if Q.ndim != 2 or Q.shape[0] == 0:
-        raise InvalidInputError(f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}")
+        raise InvalidInputError(
+            f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}"
+        )
     filt = SequenceFilter(int(model.n_frames_), config)
 
     def rows() -> Any:

@@ -28,8 +28,9 @@ def _oracle(data_dir: Path, version: int, Q: np.ndarray, config: SequenceConfig)
     return sequence_localize(model, Q.astype(np.float32), config).index.tolist()
 
 
-def test_the_client_gets_the_library_filter_answers(gp: GridplaceClient, synth: Job, route: Route,
-                                                     data_dir: Path) -> None:  # fmt: skip
+def test_the_client_gets_the_library_filter_answers(
+    gp: GridplaceClient, synth: Job, route: Route, data_dir: Path
+) -> None:
     Q = route[1][20:140]
     got = gp.localize_sequence("synth", Q)
     assert got.n == 120 and got.map == "synth"
@@ -47,15 +48,28 @@ def test_the_client_gets_the_library_filter_answers(gp: GridplaceClient, synth: 
     assert custom.index == _oracle(data_dir, custom.version, Q, config)
 
 
-def test_json_and_base64_bodies_equal_the_binary_one(server: ServerProcess, synth: Job,
-                                                     route: Route) -> None:  # fmt: skip
+def test_json_and_base64_bodies_equal_the_binary_one(
+    server: ServerProcess, synth: Job, route: Route
+) -> None:
     Q = route[1][:60].astype(np.float32)
     url = server.url + "/v1/localize/sequence"
-    binary = httpx.post(url, params={"map": "synth", "d": Q.shape[1], "max_speed": 3},
-                        content=Q.tobytes(), headers={"Content-Type": "application/octet-stream"})  # fmt: skip
-    as_json = httpx.post(url, json={"map": "synth", "descriptors": Q.tolist(), "filter": {"max_speed": 3}})
-    as_b64 = httpx.post(url, json={"map": "synth", "filter": {"max_speed": 3},
-                                   "descriptors_b64": base64.b64encode(Q.tobytes()).decode()})  # fmt: skip
+    binary = httpx.post(
+        url,
+        params={"map": "synth", "d": Q.shape[1], "max_speed": 3},
+        content=Q.tobytes(),
+        headers={"Content-Type": "application/octet-stream"},
+    )
+    as_json = httpx.post(
+        url, json={"map": "synth", "descriptors": Q.tolist(), "filter": {"max_speed": 3}}
+    )
+    as_b64 = httpx.post(
+        url,
+        json={
+            "map": "synth",
+            "filter": {"max_speed": 3},
+            "descriptors_b64": base64.b64encode(Q.tobytes()).decode(),
+        },
+    )
     for r in (binary, as_json, as_b64):
         assert r.status_code == 200, r.text
         assert r.json()["filter"]["max_speed"] == 3.0
@@ -65,31 +79,72 @@ def test_json_and_base64_bodies_equal_the_binary_one(server: ServerProcess, synt
 @pytest.mark.parametrize(
     ("kwargs", "status", "code", "match"),
     [
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 63]}}, 400, "dimension_mismatch", "expects 64"),
+        (
+            {"json": {"map": "synth", "descriptors": [[0.0] * 63]}},
+            400,
+            "dimension_mismatch",
+            "expects 64",
+        ),
         ({"json": {"map": "synth", "descriptors": []}}, 400, "empty_input", "empty"),
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"max_speed": 0.1}}},
-         422, "validation_error", "below min_speed"),
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"speed": 1}}},
-         422, "validation_error", "filter.speed"),
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"reverse": True}},
-          "params": {"reverse": "false"}}, 400, "invalid_input", "not both"),
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 64]}, "params": {"emission_scale": "0"}},
-         422, "validation_error", "emission_scale"),
-        ({"json": {"map": "synth", "descriptors": [[0.0] * 64]}, "params": {"emision_scale": "1"}},
-         400, "invalid_input", "emision_scale"),
-        ({"content": b"\0" * 12, "headers": {"Content-Type": "application/octet-stream"}},
-         400, "invalid_input", "map"),
+        (
+            {"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"max_speed": 0.1}}},
+            422,
+            "validation_error",
+            "below min_speed",
+        ),
+        (
+            {"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"speed": 1}}},
+            422,
+            "validation_error",
+            "filter.speed",
+        ),
+        (
+            {
+                "json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"reverse": True}},
+                "params": {"reverse": "false"},
+            },
+            400,
+            "invalid_input",
+            "not both",
+        ),
+        (
+            {
+                "json": {"map": "synth", "descriptors": [[0.0] * 64]},
+                "params": {"emission_scale": "0"},
+            },
+            422,
+            "validation_error",
+            "emission_scale",
+        ),
+        (
+            {
+                "json": {"map": "synth", "descriptors": [[0.0] * 64]},
+                "params": {"emision_scale": "1"},
+            },
+            400,
+            "invalid_input",
+            "emision_scale",
+        ),
+        (
+            {"content": b"\0" * 12, "headers": {"Content-Type": "application/octet-stream"}},
+            400,
+            "invalid_input",
+            "map",
+        ),
         ({"json": {"map": "nowhere", "descriptors": [[0.0] * 64]}}, 404, "not_found", "nowhere"),
     ],
-)  # fmt: skip
-def test_bad_requests_are_4xx_naming_the_problem(server: ServerProcess, synth: Job, kwargs,
-                                                 status: int, code: str, match: str) -> None:  # fmt: skip
+)
+def test_bad_requests_are_4xx_naming_the_problem(
+    server: ServerProcess, synth: Job, kwargs, status: int, code: str, match: str
+) -> None:
     r = httpx.post(server.url + "/v1/localize/sequence", **kwargs)
     assert r.status_code == status, r.text
     assert r.json()["error"] == code and match in r.json()["message"]
 
 
-def test_client_errors_map_back_to_the_hierarchy(gp: GridplaceClient, synth: Job, route: Route) -> None:
+def test_client_errors_map_back_to_the_hierarchy(
+    gp: GridplaceClient, synth: Job, route: Route
+) -> None:
     with pytest.raises(RequestValidationError, match="relocalization"):
         gp.localize_sequence("synth", route[1][:5], relocalization=2.0)
     with pytest.raises(InvalidInputError, match="unknown query parameter"):
@@ -103,8 +158,9 @@ def test_the_async_client(server: ServerProcess, synth: Job, route: Route) -> No
 
     async def main() -> tuple[list[int], list[int]]:
         async with AsyncGridplaceClient(server.url, token=TOKEN) as agp:
-            a, b = await asyncio.gather(agp.localize_sequence("synth", Q),
-                                        agp.localize_sequence("synth", Q, max_speed=3.0))  # fmt: skip
+            a, b = await asyncio.gather(
+                agp.localize_sequence("synth", Q), agp.localize_sequence("synth", Q, max_speed=3.0)
+            )
             assert b.filter["max_speed"] == 3.0
             return a.index, b.index
 

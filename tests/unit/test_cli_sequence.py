@@ -19,8 +19,13 @@ from service.encoding.synthetic import smooth_route
 
 
 def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)],
-                          capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "service.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
 
 
 def invoke(*args: str | Path) -> tuple[int, str, str]:
@@ -36,30 +41,63 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     np.save(root / "query.npy", route.query)
     np.save(root / "gt.npy", np.arange(300))
     save_model(PhaseEncoder(trainer="ridge").fit(route.reference), root / "model")
-    return {"root": root, "model": root / "model", "query": root / "query.npy", "gt": root / "gt.npy"}
+    return {
+        "root": root,
+        "model": root / "model",
+        "query": root / "query.npy",
+        "gt": root / "gt.npy",
+    }
 
 
 def test_evaluate_sequence_adds_the_filter_precision(files: dict[str, Path]) -> None:
-    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "5", "--json")
+    code, stdout, _ = invoke(
+        "evaluate", files["model"], files["query"], "--tolerance", "5", "--json"
+    )
     assert code == 0
-    res = run("evaluate", files["model"], files["query"], "--tolerance", "5", "--json", "--sequence",
-              "--ground-truth", files["gt"])  # fmt: skip
+    res = run(
+        "evaluate",
+        files["model"],
+        files["query"],
+        "--tolerance",
+        "5",
+        "--json",
+        "--sequence",
+        "--ground-truth",
+        files["gt"],
+    )
     assert res.returncode == 0, res.stderr
     base, out = json.loads(stdout), json.loads(res.stdout)
-    assert set(base) <= set(out) and out["precision"] == base["precision"]  # today's keys, same values
+    assert (
+        set(base) <= set(out) and out["precision"] == base["precision"]
+    )  # today's keys, same values
     assert set(out["sequence_precision_at"]) == set(out["precision_at"])
     assert out["sequence_precision"] == out["sequence_precision_at"]["5"]
-    assert out["sequence_precision"] > out["precision"] + 0.1, (out["precision"], out["sequence_precision"])
+    assert out["sequence_precision"] > out["precision"] + 0.1, (
+        out["precision"],
+        out["sequence_precision"],
+    )
     assert out["sequence"]["filter"] == SequenceConfig().model_dump()
     assert out["sequence"]["seconds_per_frame"] > 0 and 0 <= out["sequence"]["mean_confidence"] <= 1
-    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "5", "--sequence")
+    code, stdout, _ = invoke(
+        "evaluate", files["model"], files["query"], "--tolerance", "5", "--sequence"
+    )
     assert code == 0 and "sequence precision@5" in stdout
 
 
 def test_localize_sequence_writes_the_filtered_indices(files: dict[str, Path]) -> None:
     pred = files["root"] / "seq.npy"
-    code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence", "--out", pred,
-                             "--filter", "emission_scale=0.2", "--filter", "reverse=true")  # fmt: skip
+    code, _, stderr = invoke(
+        "localize",
+        files["model"],
+        files["query"],
+        "--sequence",
+        "--out",
+        pred,
+        "--filter",
+        "emission_scale=0.2",
+        "--filter",
+        "reverse=true",
+    )
     assert code == 0, stderr
     config = SequenceConfig(emission_scale=0.2, reverse=True)
     want = sequence_localize(load_model(files["model"]), np.load(files["query"]), config).index
@@ -68,13 +106,16 @@ def test_localize_sequence_writes_the_filtered_indices(files: dict[str, Path]) -
 
 @pytest.mark.parametrize(
     ("args", "needle"),
-    [(["--sequence", "--filter", "emission_scale=-1"], "emission_scale"),
-     (["--sequence", "--filter", "nonsense"], "KEY=VALUE"),
-     (["--sequence", "--filter", "speed=2"], "speed"),
-     (["--filter", "reverse=true"], "needs --sequence")],
-)  # fmt: skip
-def test_bad_filter_options_exit_2_naming_the_problem(files: dict[str, Path], args: list[str],
-                                                      needle: str) -> None:  # fmt: skip
+    [
+        (["--sequence", "--filter", "emission_scale=-1"], "emission_scale"),
+        (["--sequence", "--filter", "nonsense"], "KEY=VALUE"),
+        (["--sequence", "--filter", "speed=2"], "speed"),
+        (["--filter", "reverse=true"], "needs --sequence"),
+    ],
+)
+def test_bad_filter_options_exit_2_naming_the_problem(
+    files: dict[str, Path], args: list[str], needle: str
+) -> None:
     for command in ("evaluate", "localize"):
         code, stdout, stderr = invoke(command, files["model"], files["query"], *args)
         assert code == 2, (command, stdout, stderr)
@@ -84,8 +125,9 @@ def test_bad_filter_options_exit_2_naming_the_problem(files: dict[str, Path], ar
 def test_bench_sequence_smoke(tmp_path: Path) -> None:
     """A tiny run of ``gridplace bench sequence`` (cost only) writes its JSON."""
     out = tmp_path / "bench.json"
-    code, stdout, stderr = invoke("bench", "sequence", "--sizes", "300", "--repeats", "3",
-                                  "--no-nordland", "--out", out)  # fmt: skip
+    code, stdout, stderr = invoke(
+        "bench", "sequence", "--sizes", "300", "--repeats", "3", "--no-nordland", "--out", out
+    )
     assert code == 0, stderr
     cost = json.loads(out.read_text())["filter_cost"]["300"]
     assert cost["hmm"]["cpu_us"] > 0 and cost["seqslam"]["wall_us"] > 0 and cost["hmm_speeds"] == 7

@@ -36,8 +36,9 @@ from service.errors import InvalidInputError, InvalidParameterError
 N = 500
 
 
-def scores_along(positions: np.ndarray, n: int = N, width: float = 2.0, noise: float = 0.0,
-                 seed: int = 0) -> np.ndarray:  # fmt: skip
+def scores_along(
+    positions: np.ndarray, n: int = N, width: float = 2.0, noise: float = 0.0, seed: int = 0
+) -> np.ndarray:
     """SYNTHETIC frame scores like descriptor similarities: a bump of height 1 at each true
     position over a flat background (plus Gaussian noise of std ``noise``)."""
     frames = np.arange(n)[None, :]
@@ -60,12 +61,17 @@ def track(S: np.ndarray, config: SequenceConfig | None = None) -> np.ndarray:
 # -- tracking ------------------------------------------------------------------------------
 @pytest.mark.parametrize("speed", [1.0, 2.0, 0.75, 1.5, 1.1])
 @pytest.mark.parametrize("emission", ["zscore", "raw"])
-def test_a_noiseless_drive_is_tracked_exactly_after_a_short_warm_up(speed: float, emission: str) -> None:
+def test_a_noiseless_drive_is_tracked_exactly_after_a_short_warm_up(
+    speed: float, emission: str
+) -> None:
     """Exactly at whole speeds; within one frame at fractional ones (where the true frame is
     itself a rounding of ``speed·t``)."""
     truth = np.rint(np.arange(0, 0.8 * N, speed)).astype(np.int64)
     if emission == "raw":
-        S, config = gaussian_log_likelihood(truth), SequenceConfig(emission="raw", emission_scale=1.0)
+        S, config = (
+            gaussian_log_likelihood(truth),
+            SequenceConfig(emission="raw", emission_scale=1.0),
+        )
     else:
         S, config = scores_along(truth, width=1.0), SequenceConfig()
     err = np.abs(track(S, config)[5:] - truth[5:])
@@ -163,7 +169,11 @@ def test_cost_per_frame_does_not_grow_with_the_history() -> None:
     filt = SequenceFilter(N)
     for row in S[:3]:
         filt.update(row)
-    calls_early, peak_early, state = _calls_per_update(filt, S[3]), _peak_bytes_per_update(filt, S[4]), filt.nbytes
+    calls_early, peak_early, state = (
+        _calls_per_update(filt, S[3]),
+        _peak_bytes_per_update(filt, S[4]),
+        filt.nbytes,
+    )
     for row in S[5:900]:
         filt.update(row)
     assert _calls_per_update(filt, S[900]) == calls_early  # the same operations at t=4 and t=900
@@ -197,9 +207,14 @@ rows = st.lists(st.one_of(scores, st.just(-np.inf)), min_size=12, max_size=12).f
 
 
 @settings(max_examples=60, deadline=None)
-@given(drive=st.lists(rows, min_size=1, max_size=6), reverse=st.booleans(),
-       emission=st.sampled_from(["zscore", "raw"]))  # fmt: skip
-def test_the_posterior_stays_a_distribution(drive: list[list[float]], reverse: bool, emission: str) -> None:
+@given(
+    drive=st.lists(rows, min_size=1, max_size=6),
+    reverse=st.booleans(),
+    emission=st.sampled_from(["zscore", "raw"]),
+)
+def test_the_posterior_stays_a_distribution(
+    drive: list[list[float]], reverse: bool, emission: str
+) -> None:
     filt = SequenceFilter(12, SequenceConfig(reverse=reverse, emission=emission, min_speed=0.0))
     for row in drive:
         est = filt.update(np.array(row))
@@ -211,14 +226,19 @@ def test_the_posterior_stays_a_distribution(drive: list[list[float]], reverse: b
 
 
 @settings(max_examples=40, deadline=None)
-@given(drive=st.lists(rows, min_size=1, max_size=6), shift=st.floats(-1e3, 1e3),
-       scale=st.floats(0.1, 10.0))  # fmt: skip
+@given(
+    drive=st.lists(rows, min_size=1, max_size=6),
+    shift=st.floats(-1e3, 1e3),
+    scale=st.floats(0.1, 10.0),
+)
 def test_invariant_to_a_constant_and_for_zscore_to_a_positive_scale(
     drive: list[list[float]], shift: float, scale: float
 ) -> None:
     S = np.array(drive)
-    for T, config in ((S + shift, SequenceConfig(emission="raw")),
-                      (S * scale + shift, SequenceConfig())):  # fmt: skip
+    for T, config in (
+        (S + shift, SequenceConfig(emission="raw")),
+        (S * scale + shift, SequenceConfig()),
+    ):
         a, b = SequenceFilter(12, config), SequenceFilter(12, config)
         for row, moved in zip(S, T, strict=True):
             ea, eb = a.update(row), b.update(moved)
@@ -243,9 +263,13 @@ def test_bad_rows_raise_clear_errors_and_leave_the_state() -> None:
     for row in S[:10]:
         filt.update(row)
     before = filt.state
-    for bad, match in ((np.zeros(N - 1), "expected 500"), (np.full(N, -np.inf), "every frame"),
-                       (np.r_[np.nan, np.zeros(N - 1)], "NaN"), (np.r_[np.inf, np.zeros(N - 1)], r"\+inf"),
-                       (np.zeros((2, N)), "shape")):  # fmt: skip
+    for bad, match in (
+        (np.zeros(N - 1), "expected 500"),
+        (np.full(N, -np.inf), "every frame"),
+        (np.r_[np.nan, np.zeros(N - 1)], "NaN"),
+        (np.r_[np.inf, np.zeros(N - 1)], r"\+inf"),
+        (np.zeros((2, N)), "shape"),
+    ):
         with pytest.raises(InvalidInputError, match=match):
             filt.update(bad)
     np.testing.assert_array_equal(filt.state, before)
@@ -256,11 +280,16 @@ def test_bad_rows_raise_clear_errors_and_leave_the_state() -> None:
 
 @pytest.mark.parametrize(
     ("params", "match"),
-    [({"max_speed": 0.2}, "below min_speed"), ({"speed_step": 0.001}, "at most 64"),
-     ({"relocalization": 0.0}, "relocalization"), ({"emission_scale": -1.0}, "emission_scale"),
-     ({"emission": "softmax"}, "emission"), ({"confidence_radius": -1}, "confidence_radius"),
-     ({"bogus": 1}, "bogus")],
-)  # fmt: skip
+    [
+        ({"max_speed": 0.2}, "below min_speed"),
+        ({"speed_step": 0.001}, "at most 64"),
+        ({"relocalization": 0.0}, "relocalization"),
+        ({"emission_scale": -1.0}, "emission_scale"),
+        ({"emission": "softmax"}, "emission"),
+        ({"confidence_radius": -1}, "confidence_radius"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
 def test_invalid_configurations_are_named(params: dict[str, object], match: str) -> None:
     with pytest.raises(InvalidParameterError, match=match):
         SequenceConfig.parse(**params)
@@ -303,4 +332,6 @@ def test_every_model_scores_every_frame_and_filters_a_drive(make, route) -> None
     np.testing.assert_array_equal(drive.index, whole.index)
     np.testing.assert_array_equal(drive.raw_index, S.argmax(axis=1))
     truth = np.arange(320)
-    assert np.mean(np.abs(drive.index - truth) <= 5) >= np.mean(np.abs(drive.raw_index - truth) <= 5)
+    assert np.mean(np.abs(drive.index - truth) <= 5) >= np.mean(
+        np.abs(drive.raw_index - truth) <= 5
+    )

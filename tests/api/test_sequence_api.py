@@ -1,0 +1,119 @@
+"""POST /v1/localize/sequence in-process: image drives (form and base64), the documented
+filter parameters, and one map version answering a whole drive (SYNTHETIC data)."""
+
+from __future__ import annotations
+
+import base64
+import io
+import zipfile
+
+import numpy as np
+from api_helpers import png_bytes
+from fastapi.testclient import TestClient
+
+from service.encoding.sequence import SequenceConfig, filter_sequence
+
+
+def test_an_image_drive_as_a_form_or_base64_is_the_library_filter(
+    client: TestClient, auth, registry
+) -> None:
+    from service.imaging import make_extractor
+    from service.imaging.decode import decode_image
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for i in range(40):
+            zf.writestr(f"frames/img-{i:03d}.png", png_bytes(i))
+    r = client.post(
+        "/v1/maps/imgs/routes",
+        headers=auth,
+        files={"file": ("route.zip", buf.getvalue())},
+        data={"trainer": "ridge", "width": "32", "height": "16", "patch": "8"},
+    )
+    assert r.status_code == 202, r.text
+    client.app.state.context.store.refresh()
+    drive = list(range(5, 30))
+    ext = make_extractor(registry.get_version("imgs", 1).extractor)
+    X = ext.extract([decode_image(png_bytes(i)) for i in drive])
+    model = registry.load_model("imgs", 1)
+    want = filter_sequence(model.frame_log_scores(X), SequenceConfig(max_speed=3.0)).index.tolist()
+
+    form = client.post(
+        "/v1/localize/sequence?max_speed=3",
+        data={"map": "imgs"},
+        files=[("images", (f"{i}.png", png_bytes(i))) for i in drive],
+    )
+    b64 = client.post(
+        "/v1/localize/sequence",
+        json={
+            "map": "imgs",
+            "filter": {"max_speed": 3.0},
+            "images_b64": [base64.b64encode(png_bytes(i)).decode() for i in drive],
+        },
+    )
+    for res in (form, b64):
+        assert res.status_code == 200, res.text
+        body = res.json()
+        assert body["n"] == len(drive) and body["index"] == want and body["version"] == 1
+        assert body["raw_index"] == model.localize(X).index.tolist()
+        assert all(c == 0 for c in body["chunk"]) and body["filter"]["max_speed"] == 3.0
+    bad = client.post(
+        "/v1/localize/sequence",
+        data={"map": "imgs"},
+        files=[("images", ("a.png", png_bytes(1))), ("images", ("b.png", b"GIF89 nope"))],
+    )
+    assert bad.status_code == 400 and "b.png" in bad.json()["message"]
+
+
+def test_a_descriptor_map_refuses_images_and_empty_drives(client: TestClient, trained: str) -> None:
+    r = client.post(
+        "/v1/localize/sequence",
+        json={"map": trained, "images_b64": [base64.b64encode(png_bytes(1)).decode()]},
+    )
+    assert r.status_code == 409 and r.json()["error"] == "conflict"
+    r = client.post(
+        f"/v1/localize/sequence?map={trained}",
+        content=b"",
+        headers={"Content-Type": "application/octet-stream"},
+    )
+    assert r.status_code == 400 and r.json()["error"] == "empty_input"
+    r = client.post(
+        "/v1/localize/sequence", json={"map": trained, "descriptors": [[0.0] * 32, [0.0] * 31]}
+    )
+    assert r.status_code == 400 and "different lengths" in r.json()["message"]
+
+
+def test_a_chunked_map_names_the_chunk_of_each_filtered_estimate(
+    client: TestClient, auth, route
+) -> None:
+    from api_helpers import npy_bytes
+
+    r = client.post(
+        "/v1/maps/chunky/routes",
+        headers=auth,
+        files={"file": ("route.npy", npy_bytes(route[0]))},
+        data={"trainer": "ridge", "n_chunks": "3"},
+    )
+    assert r.status_code == 202, r.text
+    client.app.state.context.store.refresh()
+    body = client.post(
+        "/v1/localize/sequence", json={"map": "chunky", "descriptors": route[1].tolist()}
+    ).json()
+    bounds = np.asarray(client.app.state.context.store.get("chunky").model.chunk_bounds_)
+    for index, chunk in zip(body["index"], body["chunk"], strict=True):
+        assert bounds[chunk] <= index < bounds[chunk + 1]
+    truth = np.arange(len(body["index"]))
+    assert np.mean(np.abs(np.array(body["index"]) - truth) <= 2) > 0.8
+
+
+def test_openapi_documents_the_endpoint_and_every_filter_parameter(client: TestClient) -> None:
+    op = client.get("/openapi.json").json()["paths"]["/v1/localize/sequence"]["post"]
+    params = {p["name"]: p for p in op["parameters"]}
+    for name, field in SequenceConfig.model_fields.items():
+        assert name in params and str(field.default) in params[name]["description"]
+    assert params["emission_scale"]["schema"]["exclusiveMinimum"] == 0.0
+    assert set(op["requestBody"]["content"]) == {
+        "application/json",
+        "multipart/form-data",
+        "application/octet-stream",
+    }
