@@ -22,7 +22,8 @@ from service.encoding import check_descriptors
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import EmptyInputError, InvalidInputError
 
-MAX_SEQUENCE_FRAMES = 100_000  # frames of one drive per request
+MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
+MAX_SEQUENCE_WORK = 2_000_000_000  # query frames × route frames per request (filter time)
 
 
 @dataclass(frozen=True)
@@ -89,10 +90,13 @@ class SequenceLocalizer:
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str
     ) -> SequenceResult:
         """Filter validated queries ``Q`` (rows in driving order) on ``loaded``."""
-        if Q.shape[0] > MAX_SEQUENCE_FRAMES:
+        limit = min(MAX_SEQUENCE_FRAMES, max(1, MAX_SEQUENCE_WORK // loaded.n_frames))
+        if Q.shape[0] > limit:
             raise InvalidInputError(
-                f"a sequence holds at most {MAX_SEQUENCE_FRAMES} frames, got {Q.shape[0]}",
-                limit=MAX_SEQUENCE_FRAMES,
+                f"a drive on map {loaded.map!r} ({loaded.n_frames} frames) holds at most "
+                f"{limit} query frames per request, got {Q.shape[0]} (stream longer drives "
+                "with gRPC LocalizeStream)",
+                limit=limit,
                 got=int(Q.shape[0]),
             )
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")

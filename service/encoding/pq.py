@@ -17,7 +17,8 @@ from service.encoding.normalization import Normalizer
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
 
-_BLOCK = 256  # query rows per faiss search when scoring every frame
+_BLOCK = 256  # query rows per faiss search when scoring every frame, at most
+_SEARCH_BUDGET = 1 << 21  # … and at most this many (distance, label) pairs per search
 _SIGMA_FRAMES = 4096  # decoded frames used for the frame-score scale
 
 
@@ -99,9 +100,10 @@ class PQIndex(PlaceRecognizer):
             median = float(np.median(np.einsum("ij,ij->i", step, step)))
             self.sigma2_ = median if median > 0 else 1.0
         out = np.empty((Qn.shape[0], self.n_frames_))
-        rows = np.arange(min(_BLOCK, Qn.shape[0]))[:, None]
-        for s in range(0, Qn.shape[0], _BLOCK):
-            q = Qn[s : s + _BLOCK]
+        block = max(1, min(_BLOCK, _SEARCH_BUDGET // self.n_frames_))  # faiss answers k = N
+        rows = np.arange(min(block, Qn.shape[0]))[:, None]
+        for s in range(0, Qn.shape[0], block):
+            q = Qn[s : s + block]
             dist, idx = self.index_.search(q, self.n_frames_)
             out[s : s + q.shape[0]][rows[: q.shape[0]], idx] = np.maximum(dist, 0) * (-0.5 / self.sigma2_)
         return out

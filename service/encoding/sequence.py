@@ -41,7 +41,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from service.errors import InvalidInputError, InvalidParameterError
 
 MAX_SPEEDS = 64  # grid speeds per direction
-_BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`
+_BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`, at most
+_SCORE_BUDGET = 1 << 22  # … and at most this many frame scores (32 MiB of float64) per call
 _FLAT = 1e-10  # a row whose spread is below this fraction of its magnitude is flat
 _MIN_LOG_LIKELIHOOD = -60.0  # one frame shrinks a state by at most e⁻⁶⁰ (float32 stays normal)
 
@@ -343,11 +344,12 @@ def filter_sequence(scores: np.ndarray, config: SequenceConfig | None = None) ->
 
 
 def sequence_localize(
-    model: Any, queries: Any, config: SequenceConfig | None = None, block: int = _BLOCK
+    model: Any, queries: Any, config: SequenceConfig | None = None, block: int | None = None
 ) -> SequenceTrack:
     """Localize ``queries`` (rows in driving order) as one drive on a fitted model that has
-    ``frame_log_scores`` (every model of :mod:`service.encoding`); frame scores are computed
-    ``block`` rows at a time, so memory stays ``O(block · N)``."""
+    ``frame_log_scores`` (every model of :mod:`service.encoding`). Frame scores are computed
+    ``block`` rows at a time (default: as many as fit ``_SCORE_BUDGET`` values, at most 256),
+    so memory stays bounded for any drive and route length."""
     if not hasattr(model, "frame_log_scores"):
         raise InvalidParameterError(f"{type(model).__name__} gives no frame scores")
     Q = np.asarray(queries)
@@ -355,11 +357,13 @@ def sequence_localize(
         raise InvalidInputError(
             f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}"
         )
-    filt = SequenceFilter(int(model.n_frames_), config)
+    n_frames = int(model.n_frames_)
+    filt = SequenceFilter(n_frames, config)
+    rows_per_call = block or max(1, min(_BLOCK, _SCORE_BUDGET // n_frames))
 
     def rows() -> Any:
-        for s in range(0, Q.shape[0], block):
-            yield from model.frame_log_scores(Q[s : s + block])
+        for s in range(0, Q.shape[0], rows_per_call):
+            yield from model.frame_log_scores(Q[s : s + rows_per_call])
 
     return _run(filt, rows(), Q.shape[0])
 

@@ -117,3 +117,20 @@ def test_openapi_documents_the_endpoint_and_every_filter_parameter(client: TestC
         "multipart/form-data",
         "application/octet-stream",
     }
+
+
+def test_a_drive_too_long_for_one_request_is_a_400_naming_the_limit(
+    client: TestClient, trained: str, route, monkeypatch
+) -> None:
+    from service.core import sequences
+
+    monkeypatch.setattr(sequences, "MAX_SEQUENCE_WORK", 120 * 50)  # N = 120: 50 frames a drive
+    ok = client.post(
+        "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:50].tolist()}
+    )
+    assert ok.status_code == 200
+    r = client.post(
+        "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:51].tolist()}
+    )
+    assert r.status_code == 400 and r.json()["details"] == {"limit": 50, "got": 51}
+    assert "LocalizeStream" in r.json()["message"]
