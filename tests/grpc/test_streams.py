@@ -74,3 +74,18 @@ def test_bad_frames_raise_the_hierarchy_and_leave_the_history(ctx: tuple[Service
     with pytest.raises(DimensionMismatchError, match="one descriptor"):
         stream.answer(Frame("v", 8, "chunked", descriptor=Q[:2].astype("<f4").tobytes()))
     assert stream.answer(frame(Q, 9, sequence_filter=True)).frames_used == 2
+
+
+def test_filters_are_dropped_least_recent_first_beyond_the_byte_budget(
+    ctx: tuple[ServiceContext, np.ndarray],
+) -> None:
+    context, Q = ctx
+    per_vehicle = 4 * 7 * N  # one posterior: S = 7 speeds × N frames of float32
+    stream = FleetStream(context.service, max_filter_bytes=2 * per_vehicle)
+    for vehicle in ("a", "b", "c"):
+        stream.answer(frame(Q, 10, vehicle, sequence_filter=True))
+    assert stream.vehicles == 2 and stream.filter_bytes == 2 * per_vehicle
+    assert stream.answer(frame(Q, 11, "a", sequence_filter=True)).frames_used == 1  # a was dropped
+    assert stream.answer(frame(Q, 11, "c", sequence_filter=True)).frames_used == 2
+    stream.answer(frame(Q, 12, "c"))  # the flag off: c's filter is released
+    assert stream.vehicles == 1 and stream.filter_bytes == per_vehicle
