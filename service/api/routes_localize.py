@@ -85,6 +85,16 @@ async def _form(request: Request) -> tuple[str, list[tuple[str, bytes]]]:
     return name, images
 
 
+def binary_map(map_q: str | None, map_h: str | None, what: str) -> str:
+    """The map of a binary body: the ``map`` query parameter or the ``X-Gridplace-Map`` header."""
+    name = map_q or map_h
+    if not name:
+        raise InvalidInputError(
+            f"binary {what} need the map as ?map=NAME or an X-Gridplace-Map header", field="map"
+        )
+    return name
+
+
 async def _json_body(request: Request) -> bytes:
     body = await request.body()
     if not body.strip():
@@ -155,11 +165,7 @@ async def localize_batch(
     svc = _service(request)
     ctype = request.headers.get("content-type", "")
     if ctype.startswith("application/octet-stream"):
-        name = map_q or map_h
-        if not name:
-            raise InvalidInputError(
-                "binary batches need the map as ?map=NAME or an X-Gridplace-Map header", field="map"
-            )
+        name = binary_map(map_q, map_h, "batches")
         body = await request.body()
         result = await run_in_threadpool(svc.localize_bytes, name, body, d_q or d_h)
     elif ctype.startswith("multipart/form-data"):

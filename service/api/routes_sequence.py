@@ -24,6 +24,7 @@ from service.api.routes_localize import (
     _form,
     _json_body,
     _service,
+    binary_map,
 )
 from service.api.schemas import BatchLocalizeRequest
 from service.core.sequences import SequenceLocalizer, SequenceResult
@@ -133,12 +134,7 @@ async def localize_sequence(
     query = _query_filter(request)
     ctype = request.headers.get("content-type", "")
     if ctype.startswith("application/octet-stream"):
-        name = map_q or map_h
-        if not name:
-            raise InvalidInputError(
-                "binary sequences need the map as ?map=NAME or an X-Gridplace-Map header",
-                field="map",
-            )
+        name = binary_map(map_q, map_h, "sequences")
         body = await request.body()
         result = await run_in_threadpool(
             localizer.localize_bytes, name, body, d_q or d_h, SequenceConfig(**query)

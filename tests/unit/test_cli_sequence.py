@@ -18,16 +18,6 @@ from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.synthetic import smooth_route
 
 
-def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "service.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
-
-
 def invoke(*args: str | Path) -> tuple[int, str, str]:
     res = CliRunner().invoke(app, [str(a) for a in args])
     return res.exit_code, res.stdout, res.stderr
@@ -54,17 +44,12 @@ def test_evaluate_sequence_adds_the_filter_precision(files: dict[str, Path]) -> 
         "evaluate", files["model"], files["query"], "--tolerance", "5", "--json"
     )
     assert code == 0
-    res = run(
-        "evaluate",
-        files["model"],
-        files["query"],
-        "--tolerance",
-        "5",
-        "--json",
-        "--sequence",
-        "--ground-truth",
-        files["gt"],
-    )
+    args = ["evaluate", files["model"], files["query"], "--tolerance", "5", "--json", "--sequence",
+            "--ground-truth", files["gt"]]  # fmt: skip
+    res = subprocess.run(  # as a user runs it
+        [sys.executable, "-m", "service.cli", *map(str, args)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
     assert res.returncode == 0, res.stderr
     base, out = json.loads(stdout), json.loads(res.stdout)
     assert (
