@@ -9,8 +9,8 @@ precision on Nordland (exact NN and gridplace on the same descriptors), in one r
   method is fitted on the summer frames of a split and its frame scores are computed for the
   winter frames. Tuning drives on A are the winter traversal driven at different speeds:
   ``speed_1`` (the traversal as recorded), ``speed_0.7``, ``speed_1.5``, a smoothly
-  ``varying`` speed in [0.6, 1.8], and a ``kidnap`` (after a third of the drive the vehicle
-  is moved 500 frames ahead). The configuration with the best mean precision at ±5 frames
+  ``varying`` speed in [0.6, 1.8], a ``kidnap`` (after a third of the drive the vehicle
+  is moved 500 frames ahead) and ``stops`` (it stands still for 40, later 80 frames). The configuration with the best mean precision at ±5 frames
   over every method and drive wins; B and the whole route are then reported at speed 1
   without re-tuning.
 """
@@ -88,6 +88,12 @@ def filter_cost(sizes: list[int], repeats: int) -> dict[str, Any]:
 
 
 # -- drives and precision -------------------------------------------------------------------
+def _stops(n: int) -> list[tuple[int, int]]:
+    """Segments of the ``stops`` drive: driving at speed 1, stopping 40 then 80 frames."""
+    a, b = int(0.25 * n), int(0.55 * n)
+    return [(0, a), (a, a + 40), (a, b), (b, b + 80), (b, n)]
+
+
 def validation_drives(n: int, seed: int = 0) -> dict[str, np.ndarray]:
     """Frame positions of the tuning drives over a traversal of ``n`` frames (see module doc)."""
     rng = np.random.default_rng(seed)
@@ -103,6 +109,12 @@ def validation_drives(n: int, seed: int = 0) -> dict[str, np.ndarray]:
         "speed_1.5": np.arange(0, n - 1, 1.5),
         "varying": varying[varying < n - 1],
         "kidnap": np.concatenate([np.arange(jump), np.arange(jump + gap, n)]).astype(float),
+        "stops": np.concatenate(
+            [
+                np.arange(a, b) if k % 2 == 0 else np.full(b - a, a)
+                for k, (a, b) in enumerate(_stops(n))
+            ]
+        ).astype(float),
     }
     return {k: np.rint(v).astype(np.int64) for k, v in drives.items()}
 
@@ -188,7 +200,10 @@ def tune(scores: dict[str, np.ndarray], grid: str) -> dict[str, Any]:
 def _short(c: Candidate) -> str:
     if isinstance(c, SeqSLAMConfig):
         return f"seqslam window={c.window}"
-    return f"hmm scale={c.emission_scale} speed_change={c.speed_change} reloc={c.relocalization}"
+    return (
+        f"hmm scale={c.emission_scale} speed_change={c.speed_change} "
+        f"reloc={c.relocalization} stop={c.stop_probability}"
+    )
 
 
 def _report(data: dict[str, dict[str, Any]], configs: dict[str, Candidate]) -> dict[str, Any]:

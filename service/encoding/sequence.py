@@ -69,6 +69,12 @@ class SequenceConfig(BaseModel):
     direction_change: float = Field(
         0.001, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
     )
+    stop_probability: float = Field(
+        0.0, ge=0.0, le=0.5, description="probability per frame of stopping (0: no stopped state)"
+    )
+    start_probability: float = Field(
+        0.2, gt=0.0, le=1.0, description="probability per frame that a stopped vehicle moves on"
+    )
     relocalization: float = Field(
         1e-4, gt=0.0, le=1.0, description="probability per frame of a jump anywhere on the route"
     )
@@ -184,8 +190,14 @@ class SequenceFilter:
         self.n_frames = int(n_frames)
         self.config = config or SequenceConfig()
         v = self.config.speeds()
-        self.speeds = v
-        self._n_dir = v.size // 2 if self.config.reverse else v.size  # speeds per direction
+        n_dir = v.size // 2 if self.config.reverse else v.size  # speeds per direction
+        self._stop: int | None = None
+        if self.config.stop_probability > 0:  # a stopped state, between the two directions
+            self._stop = n_dir if self.config.reverse else 0
+            v = np.insert(v, self._stop, 0.0)
+        self.speeds = v  # ascending: rows that share the integer part of a speed are contiguous
+        first = [0, n_dir + (self._stop is not None)] if self.config.reverse else [v.size - n_dir]
+        self._blocks = [slice(lo, lo + n_dir) for lo in first]  # each direction's speed grid
         whole = np.floor(v).astype(np.int64)
         frac = (v - whole).astype(np.float32)
         # rows that share the integer part of their speed are shifted by one slice operation
@@ -256,16 +268,17 @@ class SequenceFilter:
         self, post: np.ndarray, out: np.ndarray, tmp: np.ndarray, scale: float
     ) -> None:
         """``out = scale ·`` (speed random walk on each direction's grid with reflecting ends,
-        then direction flips); ``tmp`` is scratch, ``post`` is left as it was."""
-        q = self.config.speed_change
+        stopping and moving on, then direction flips); ``tmp`` is scratch, ``post`` is left as
+        it was."""
+        cfg = self.config
+        q = cfg.speed_change
         np.multiply(post, np.float32(scale * (1.0 - q)), out=out)  # float32 scalars: float32 loops
         h = np.float32(0.5 * q * scale)
-        n = self._n_dir
         if q > 0:
             np.multiply(post, h, out=tmp)  # each neighbour's share
-            for lo in range(0, self.speeds.size, n):
-                src, dst = tmp[lo : lo + n], out[lo : lo + n]
-                if n > 1:
+            for block in self._blocks:
+                src, dst = tmp[block], out[block]
+                if src.shape[0] > 1:
                     dst[1:] += src[:-1]
                     dst[:-1] += src[1:]
                     dst[0] += src[0]  # reflect: the missing neighbour's share stays
@@ -273,6 +286,16 @@ class SequenceFilter:
                 else:
                     dst += src
                     dst += src
+        if self._stop is not None:
+            stopped = np.multiply(post[self._stop], np.float32(scale), out=tmp[self._stop])
+            moving = sum(out[block].sum(axis=0) for block in self._blocks)
+            go, halt = cfg.start_probability, cfg.stop_probability
+            share = stopped * np.float32(go / sum(b.stop - b.start for b in self._blocks))
+            for block in self._blocks:
+                out[block] *= np.float32(1.0 - halt)
+                out[block] += share
+            np.multiply(stopped, np.float32(1.0 - go), out=out[self._stop])
+            out[self._stop] += moving * np.float32(halt)
         if self.config.reverse:
             r = self.config.direction_change
             np.multiply(out[::-1], np.float32(r), out=tmp)  # speed v ↔ −v: the grid is mirrored

@@ -123,7 +123,7 @@ def test_bench_tuning_picks_the_best_candidate_on_the_drives() -> None:
     from service.bench.sequence_bench import tune, validation_drives
 
     drives = validation_drives(300)
-    assert set(drives) == {"speed_1", "speed_0.7", "speed_1.5", "varying", "kidnap"}
+    assert set(drives) == {"speed_1", "speed_0.7", "speed_1.5", "varying", "kidnap", "stops"}
     for pos in drives.values():
         assert pos.min() >= 0 and pos.max() < 300 and pos.size > 100
     route = smooth_route(300, 24, query_noise=0.8, seed=2)  # SYNTHETIC

@@ -114,6 +114,19 @@ def test_reverse_driving_is_tracked_only_when_allowed() -> None:
     assert got.speed[-1] < -0.9  # it knows it drives backwards
 
 
+def test_a_stopped_state_holds_the_vehicle_where_it_stands() -> None:
+    truth = np.concatenate([np.arange(100, 200), np.full(60, 200), np.arange(200, 300)])
+    S = scores_along(truth, width=3.0, noise=0.2, seed=4)
+    with_stop = SequenceConfig(stop_probability=0.01)
+    held, moving_only = (np.abs(track(S, c) - truth) <= 2 for c in (with_stop, SequenceConfig()))
+    assert held[100:160].mean() > 0.6 and moving_only[100:160].mean() < 0.1  # during the stop
+    assert held[160:].mean() > 0.95 > moving_only[160:].mean()  # and after it
+    got = filter_sequence(S, with_stop)
+    assert got.speed[150] < 0.2 and abs(got.speed[-1] - 1.0) < 0.1  # stopped, then moving again
+    filt = SequenceFilter(N, with_stop)
+    assert filt.speeds[0] == 0.0 and filt.nbytes == 4 * 8 * N  # one more state row
+
+
 def test_a_chunked_model_minus_inf_frames_cannot_veto_the_track() -> None:
     truth = np.arange(N - 10)
     S = scores_along(truth, width=3.0)
@@ -211,11 +224,15 @@ rows = st.lists(st.one_of(scores, st.just(-np.inf)), min_size=12, max_size=12).f
     drive=st.lists(rows, min_size=1, max_size=6),
     reverse=st.booleans(),
     emission=st.sampled_from(["zscore", "raw"]),
+    stop=st.sampled_from([0.0, 0.2]),
 )
 def test_the_posterior_stays_a_distribution(
-    drive: list[list[float]], reverse: bool, emission: str
+    drive: list[list[float]], reverse: bool, emission: str, stop: float
 ) -> None:
-    filt = SequenceFilter(12, SequenceConfig(reverse=reverse, emission=emission, min_speed=0.0))
+    config = SequenceConfig(
+        reverse=reverse, emission=emission, min_speed=0.0, stop_probability=stop
+    )
+    filt = SequenceFilter(12, config)
     for row in drive:
         est = filt.update(np.array(row))
         post = filt.posterior
