@@ -31,6 +31,7 @@ the posterior mass within ``confidence_radius`` frames of it.
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -44,6 +45,7 @@ MAX_SPEEDS = 64  # grid speeds per direction
 _BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`, at most
 _SCORE_BUDGET = 1 << 22  # … and at most this many frame scores (32 MiB of float64) per call
 _FLAT = 1e-10  # a row whose spread is below this fraction of its magnitude is flat
+_WORKSPACE_SHAPES = 4  # scratch kept per thread for this many route sizes
 _MIN_LOG_LIKELIHOOD = -60.0  # one frame shrinks a state by at most e⁻⁶⁰ (float32 stays normal)
 
 
@@ -164,17 +166,19 @@ def emission_log_likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray
 
 class _Workspace(threading.local):
     """Scratch arrays shared by every filter of one thread (per-vehicle memory is the posterior
-    alone: ``4·S·N`` bytes)."""
+    alone: ``4·S·N`` bytes), for the few most recently used state shapes (maps)."""
 
     def __init__(self) -> None:
-        self.arrays: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.arrays: OrderedDict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
 
     def get(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         bufs = self.arrays.get(shape)
         if bufs is None:
-            self.arrays.clear()  # one route size at a time is the common case; stay bounded
             bufs = (np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32))
             self.arrays[shape] = bufs
+            while len(self.arrays) > _WORKSPACE_SHAPES:
+                self.arrays.popitem(last=False)
+        self.arrays.move_to_end(shape)
         return bufs
 
 
