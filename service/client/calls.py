@@ -31,6 +31,7 @@ from service.wire import (
     MapDetail,
     MapSummary,
     Readiness,
+    SequenceFilterOptions,
     SequenceLocalization,
     TrainingOptions,
     Version,
@@ -124,10 +125,11 @@ def options_of(options: TrainingOptions | None, params: dict[str, Any]) -> Train
     try:
         return TrainingOptions(**merged)
     except ValidationError as exc:
-        msgs = "; ".join(
-            f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors()
-        )
-        raise InvalidParameterError(f"invalid training parameters: {msgs}") from exc
+        raise InvalidParameterError(f"invalid training parameters: {_messages(exc)}") from exc
+
+
+def _messages(exc: ValidationError) -> str:
+    return "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
 
 
 # -- the calls ------------------------------------------------------------------------------
@@ -170,9 +172,14 @@ def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalizat
 def localize_sequence(
     map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any]
 ) -> Call[SequenceLocalization]:
-    """Rows in driving order, one binary float32 request; the server validates the filter."""
+    """Rows in driving order, one binary float32 request; filter options are checked against
+    their static bounds before anything is sent (the server checks the rest)."""
     X = as_float32_rows(descriptors, "descriptors")
-    params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in filter_params.items()}
+    try:
+        options = SequenceFilterOptions(**filter_params).given()
+    except ValidationError as exc:
+        raise InvalidParameterError(f"invalid sequence filter options: {_messages(exc)}") from exc
+    params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}
     return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization), kwargs={
         "params": {**params, "map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
         "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip

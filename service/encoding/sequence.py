@@ -55,7 +55,7 @@ class SequenceConfig(BaseModel):
     gridplace, drives at several speeds and a kidnapped vehicle); only the speed range is a
     prior on the vehicle, widen it for a vehicle that is faster relative to the map."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     min_speed: float = Field(
         0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame"

@@ -40,7 +40,11 @@ from service.wire.localize import (
     LocalizeRequest,
 )
 from service.wire.maps import MapDetail, MapSummary, Version
-from service.wire.sequence import SequenceLocalization
+from service.wire.sequence import (
+    SequenceFilterOptions,
+    SequenceLocalization,
+    SequenceLocalizeRequest,
+)
 from service.wire.training import TrainingOptions
 
 __all__ = [
@@ -66,7 +70,9 @@ __all__ = [
     "PartProgress",
     "Readiness",
     "Request",
+    "SequenceFilterOptions",
     "SequenceLocalization",
+    "SequenceLocalizeRequest",
     "TrainingOptions",
     "Version",
     "VersionNumber",

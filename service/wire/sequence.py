@@ -1,12 +1,71 @@
-"""``POST /v1/localize/sequence``: an ordered batch of frames as one drive, and its answer."""
+"""``POST /v1/localize/sequence``: an ordered batch of frames as one drive, and its answer.
+
+The filter options mirror :class:`service.encoding.sequence.SequenceConfig` (its static bounds;
+a test keeps them equal): every option is optional, an unset one takes the server's default.
+Rules that involve several options (``max_speed ≥ min_speed``, the size of the speed grid)
+are checked by the server.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
-from service.wire.base import Answer
+from service.wire.base import Answer, Request
+from service.wire.localize import BatchLocalizeRequest
+
+EmissionMode = Literal["zscore", "raw"]
+
+
+class SequenceFilterOptions(Request):
+    """The sequence filter's parameters; ``None`` = the server's (measured) default."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    min_speed: float | None = Field(
+        None, ge=0.0, le=50.0, description="slowest speed, frames per query frame"
+    )
+    max_speed: float | None = Field(
+        None, ge=0.0, le=50.0, description="fastest speed, frames per query frame"
+    )
+    speed_step: float | None = Field(None, gt=0.0, le=50.0, description="spacing of the speed grid")
+    speed_change: float | None = Field(
+        None, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
+    )
+    reverse: bool | None = Field(None, description="the vehicle may drive the route backwards")
+    direction_change: float | None = Field(
+        None, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
+    )
+    stop_probability: float | None = Field(
+        None, ge=0.0, le=0.5, description="probability per frame of stopping (0: no stopped state)"
+    )
+    start_probability: float | None = Field(
+        None, gt=0.0, le=1.0, description="probability per frame that a stopped vehicle moves on"
+    )
+    relocalization: float | None = Field(
+        None, gt=0.0, le=1.0, description="probability per frame of a jump anywhere on the route"
+    )
+    emission: EmissionMode | None = Field(
+        None, description="zscore: standardise each query's frame scores; raw: use them as is"
+    )
+    emission_scale: float | None = Field(
+        None, gt=0.0, le=1e6, description="weight of one query's evidence"
+    )
+    confidence_radius: int | None = Field(
+        None, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
+    )
+
+    def given(self) -> dict[str, Any]:
+        """The options that were set (the rest take the server's defaults)."""
+        return self.model_dump(exclude_none=True)
+
+
+class SequenceLocalizeRequest(BatchLocalizeRequest):
+    """A drive: exactly one of ``descriptors``, ``descriptors_b64`` or ``images_b64`` (rows in
+    driving order), and optionally the filter's options."""
+
+    filter: SequenceFilterOptions | None = Field(None, description="sequence filter options")
 
 
 class SequenceLocalization(Answer):
@@ -21,5 +80,5 @@ class SequenceLocalization(Answer):
     speed: list[float] = Field(description="estimated speed, frames per query frame")
     raw_index: list[int] = Field(description="each frame's own answer (as /localize)")
     raw_confidence: list[float]
-    filter: dict[str, Any] = Field(description="the filter parameters the server used")
+    filter: dict[str, Any] = Field(description="every filter parameter the server used")
     latency_ms: float

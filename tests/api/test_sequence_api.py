@@ -134,3 +134,19 @@ def test_a_drive_too_long_for_one_request_is_a_400_naming_the_limit(
     )
     assert r.status_code == 400 and r.json()["details"] == {"limit": 50, "got": 51}
     assert "LocalizeStream" in r.json()["message"]
+
+
+def test_the_wire_options_carry_the_filters_bounds() -> None:
+    """Every filter parameter is a wire option with the same type and static bounds, so the
+    OpenAPI schema and the client refuse what the server refuses."""
+    from service.wire import SequenceFilterOptions
+
+    lib = SequenceConfig.model_json_schema()["properties"]
+    wire = SequenceFilterOptions.model_json_schema()["properties"]
+    assert set(lib) == set(wire)
+    keep = ("type", "enum", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum")
+    for name, prop in wire.items():
+        variant = next(v for v in prop["anyOf"] if v.get("type") != "null")
+        want = {k: v for k, v in lib[name].items() if k in keep}
+        assert {k: v for k, v in variant.items() if k in keep} == want, name
+        assert prop["description"] == lib[name]["description"], name

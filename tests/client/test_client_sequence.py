@@ -15,7 +15,7 @@ from client_helpers import TOKEN
 from service.api.process import ServerProcess
 from service.client import AsyncGridplaceClient, GridplaceClient, Job, RequestValidationError
 from service.encoding.sequence import SequenceConfig, sequence_localize
-from service.errors import InvalidInputError, NotFoundError
+from service.errors import InvalidParameterError, NotFoundError
 
 Route = tuple[np.ndarray, np.ndarray]
 
@@ -85,7 +85,7 @@ def test_json_and_base64_bodies_equal_the_binary_one(
             "dimension_mismatch",
             "expects 64",
         ),
-        ({"json": {"map": "synth", "descriptors": []}}, 400, "empty_input", "empty"),
+        ({"json": {"map": "synth", "descriptors": []}}, 422, "validation_error", "at least 1"),
         (
             {"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"max_speed": 0.1}}},
             422,
@@ -145,10 +145,14 @@ def test_bad_requests_are_4xx_naming_the_problem(
 def test_client_errors_map_back_to_the_hierarchy(
     gp: GridplaceClient, synth: Job, route: Route
 ) -> None:
-    with pytest.raises(RequestValidationError, match="relocalization"):
+    # static bounds and unknown names are refused before anything is sent …
+    with pytest.raises(InvalidParameterError, match="relocalization"):
         gp.localize_sequence("synth", route[1][:5], relocalization=2.0)
-    with pytest.raises(InvalidInputError, match="unknown query parameter"):
+    with pytest.raises(InvalidParameterError, match="speed"):
         gp.localize_sequence("synth", route[1][:5], speed=1.0)
+    # … rules across options are the server's (a 422 naming them), unknown maps a 404
+    with pytest.raises(RequestValidationError, match="below min_speed"):
+        gp.localize_sequence("synth", route[1][:5], max_speed=0.2)
     with pytest.raises(NotFoundError):
         gp.localize_sequence("nowhere", route[1][:5])
 
