@@ -38,11 +38,12 @@ def sequence_localization(r: SequenceResult) -> SequenceLocalization:
 
 
 def _config(options: SequenceFilterOptions | dict[str, Any] | None) -> SequenceConfig:
-    """The filter configuration: the options given over the server's defaults (a pydantic
-    error naming the field when they break a rule across fields, e.g. max_speed < min_speed)."""
+    """The filter configuration: the options given over the server's defaults. An option out
+    of its static bounds is a 422 (the schema says so); options the schema allows but that
+    break a rule across options (max_speed below min_speed, too many grid speeds) are a 400."""
     if isinstance(options, dict):
         options = SequenceFilterOptions(**options)
-    return SequenceConfig(**(options.given() if options is not None else {}))
+    return SequenceConfig.parse(**(options.given() if options is not None else {}))
 
 
 def _query_filter(request: Request) -> dict[str, str]:

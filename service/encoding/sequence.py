@@ -92,11 +92,10 @@ class SequenceConfig(BaseModel):
     def _speeds(self) -> SequenceConfig:
         if self.max_speed < self.min_speed:
             raise ValueError(f"max_speed {self.max_speed} is below min_speed {self.min_speed}")
-        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
-        if n > MAX_SPEEDS:
-            raise ValueError(
-                f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has {n} "
-                f"speeds; at most {MAX_SPEEDS} (raise speed_step)"
+        if self.max_speed - self.min_speed > (MAX_SPEEDS - 1 + 1e-6) * self.speed_step:
+            raise ValueError(  # compared without dividing: a tiny step must not overflow
+                f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has more "
+                f"than {MAX_SPEEDS} speeds (raise speed_step)"
             )
         return self
 

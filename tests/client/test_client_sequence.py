@@ -13,7 +13,7 @@ import pytest
 from client_helpers import TOKEN
 
 from service.api.process import ServerProcess
-from service.client import AsyncGridplaceClient, GridplaceClient, Job, RequestValidationError
+from service.client import AsyncGridplaceClient, GridplaceClient, Job
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import InvalidParameterError, NotFoundError
 
@@ -87,9 +87,18 @@ def test_json_and_base64_bodies_equal_the_binary_one(
         ),
         ({"json": {"map": "synth", "descriptors": []}}, 422, "validation_error", "at least 1"),
         (
+            {
+                "json": {"map": "synth", "descriptors": [[0.0] * 64]},
+                "params": {"speed_step": "0.001"},
+            },
+            400,
+            "invalid_parameter",
+            "more than 64",
+        ),
+        (
             {"json": {"map": "synth", "descriptors": [[0.0] * 64], "filter": {"max_speed": 0.1}}},
-            422,
-            "validation_error",
+            400,
+            "invalid_parameter",
             "below min_speed",
         ),
         (
@@ -150,8 +159,8 @@ def test_client_errors_map_back_to_the_hierarchy(
         gp.localize_sequence("synth", route[1][:5], relocalization=2.0)
     with pytest.raises(InvalidParameterError, match="speed"):
         gp.localize_sequence("synth", route[1][:5], speed=1.0)
-    # … rules across options are the server's (a 422 naming them), unknown maps a 404
-    with pytest.raises(RequestValidationError, match="below min_speed"):
+    # … rules across options are the server's (a 400 naming them), unknown maps a 404
+    with pytest.raises(InvalidParameterError, match="below min_speed"):
         gp.localize_sequence("synth", route[1][:5], max_speed=0.2)
     with pytest.raises(NotFoundError):
         gp.localize_sequence("nowhere", route[1][:5])

@@ -299,7 +299,8 @@ def test_bad_rows_raise_clear_errors_and_leave_the_state() -> None:
     ("params", "match"),
     [
         ({"max_speed": 0.2}, "below min_speed"),
-        ({"speed_step": 0.001}, "at most 64"),
+        ({"speed_step": 0.001}, "more than 64"),
+        ({"speed_step": 5e-324}, "more than 64"),
         ({"relocalization": 0.0}, "relocalization"),
         ({"emission_scale": -1.0}, "emission_scale"),
         ({"emission": "softmax"}, "emission"),
