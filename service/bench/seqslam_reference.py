@@ -27,8 +27,8 @@ _FLOOR = np.log(1e-9)  # a frame's vote for an index it finds impossible, so one
 
 @dataclass(frozen=True)
 class SeqSLAMConfig:
-    """The service's former defaults were window 6 and speeds 0…2 (9 speeds); the issue's
-    figures used a 10-frame window."""
+    """The service's former defaults were window 6 and speeds 0…2 (9 speeds); the published
+    comparisons use a 10-frame window."""
 
     window: int = 10  # query frames combined (1 = no filtering)
     min_speed: float = 0.0  # reference frames advanced per query frame

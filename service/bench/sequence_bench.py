@@ -3,7 +3,7 @@ precision on Nordland (exact NN and gridplace on the same descriptors), in one r
 
 * Cost: random frame scores on routes of ``N`` frames (the filters' work does not depend on
   the scores' values); microseconds per update (CPU and wall) of the recursive (HMM) filter
-  and of the SeqSLAM window filter (window 10, speeds 0…2 by 0.25, as in the issue's figures).
+  and of the former SeqSLAM window filter (window 10, speeds 0…2 by 0.25).
 * Precision, with the session's validation split: the route is frames ``[0, 3576)``; half
   **A** = ``[0, 1788)`` tunes, half **B** = ``[1788, 3576)`` and the whole route report. A
   method is fitted on the summer frames of a split and its frame scores are computed for the

@@ -28,7 +28,13 @@ def test_an_image_drive_as_a_form_or_base64_is_the_library_filter(
         "/v1/maps/imgs/routes",
         headers=auth,
         files={"file": ("route.zip", buf.getvalue())},
-        data={"trainer": "ridge", "width": "32", "height": "16", "patch": "8"},
+        data={
+            "trainer": "ridge",
+            "extractor": "patchnorm",
+            "width": "32",
+            "height": "16",
+            "patch": "8",
+        },
     )
     assert r.status_code == 202, r.text
     client.app.state.context.store.refresh()
