@@ -37,11 +37,13 @@ class ServerProcess:
                     **(env or {})}  # fmt: skip
         self.log_path = log_path or data_dir / f"server-{self.port}.log"
         self.proc: subprocess.Popen[bytes] | None = None
+        self._log_start = 0  # where the latest start's output begins in the (appended) log
 
     def start(self, timeout_s: float = 60.0) -> ServerProcess:
         cmd = [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1",
                "--port", str(self.port), "--data-dir", str(self.data_dir)]  # fmt: skip
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        self._log_start = self.log_path.stat().st_size if self.log_path.exists() else 0
         log = open(self.log_path, "ab")  # noqa: SIM115 - owned by the child
         self.proc = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                                      start_new_session=self.new_session)  # fmt: skip
@@ -92,8 +94,12 @@ class ServerProcess:
             self.proc.send_signal(sig)
 
     def log(self) -> str:
+        """The latest start's output (a restarted server appends to the same file; what an
+        earlier, killed run's processes printed is not this run's)."""
         try:
-            return self.log_path.read_text(errors="replace")[-4000:]
+            with self.log_path.open("rb") as f:
+                f.seek(self._log_start)
+                return f.read().decode(errors="replace")[-4000:]
         except OSError:
             return ""
 
