@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from datetime import UTC, datetime
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, cast
@@ -124,6 +125,22 @@ def _still_open(registry: Registry, job_id: str, what: str) -> None:
         raise JobFinished(f"job {job_id} finished while {what} trained; result discarded")
 
 
+def _write_while_open(registry: Registry, job_id: str, workspace: Workspace, what: str,
+                      write: Callable[[], None]) -> None:  # fmt: skip
+    """Write a part's result, then check the job again.
+
+    A job is marked failed before its workspace is removed, so a write that raced with the
+    removal (checked before it, landed after or during it, and so brought the directory
+    back) sees the job done afterwards and removes the workspace itself."""
+    _still_open(registry, job_id, what)
+    try:
+        write()
+    finally:
+        if registry.get_job(job_id).done:
+            workspace.remove()
+    _still_open(registry, job_id, what)
+
+
 class FitReporter:
     """The fit progress of one part of a job (``fit``, ``chunk_3``, ``chunk_classifier``),
     written to the registry: per-class reports at most every :data:`PROGRESS_INTERVAL_S`,
@@ -187,7 +204,10 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
     _check_finite(X)
     bounds = plan_chunks(X.shape[0], params.n_chunks)
     _validate(params, X.shape[1], np.diff(bounds).tolist())
-    Workspace(data_dir, job_id).save_prep(Prep(Normalizer.fit(X), bounds))
+    workspace = Workspace(data_dir, job_id)
+    prep = Prep(Normalizer.fit(X), bounds)
+    _write_while_open(registry, job_id, workspace, "the preparation",
+                      lambda: workspace.save_prep(prep))  # fmt: skip
     registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start},
                              part="prepare")  # fmt: skip
     return {"n_frames": int(X.shape[0]), "n_features": int(X.shape[1]),
@@ -206,8 +226,8 @@ def train_chunk(data_dir: Path, job_id: str, chunk: int) -> float:
         X = open_route(registry.route_path(spec))
         encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump(),
                                     FitReporter(registry, job_id, f"chunk_{chunk}"))  # fmt: skip
-        _still_open(registry, job_id, f"chunk {chunk}")
-        workspace.save_chunk(chunk, encoder)
+        _write_while_open(registry, job_id, workspace, f"chunk {chunk}",
+                          lambda: workspace.save_chunk(chunk, encoder))  # fmt: skip
     seconds = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={f"chunk_{chunk}": seconds},
                              part=f"chunk-{chunk}")  # fmt: skip
@@ -224,8 +244,8 @@ def train_classifier(data_dir: Path, job_id: str) -> float:
     X = open_route(registry.route_path(spec))
     classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump(),
                                       FitReporter(registry, job_id, "chunk_classifier"))  # fmt: skip
-    _still_open(registry, job_id, "the chunk classifier")
-    workspace.save_classifier(classifier, X.shape[1])
+    _write_while_open(registry, job_id, workspace, "the chunk classifier",
+                      lambda: workspace.save_classifier(classifier, X.shape[1]))
     seconds = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"chunk_classifier": seconds},
                              part="classifier")  # fmt: skip
