@@ -6,7 +6,8 @@ A route may be driven several times (summer and winter, day and night). ``fit`` 
 - a list or tuple of arrays of one shape: frame-aligned traversals (row ``i`` of every array
   is place ``i``);
 - either of those with ``places``: for one array, one integer array giving each row's place;
-  for a list, one such array per traversal (its traversals may then differ in length).
+  for a list, one such array per traversal (its traversals may then differ in length);
+- a :class:`Traversals` that :func:`as_traversals` validated already.
 
 Places are ``0 … N−1`` and every place needs at least one row. Every row is labelled with
 its place, so every traversal trains the same encoders, and the normalisation statistics
@@ -20,7 +21,7 @@ traversal's model.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -74,12 +75,20 @@ def check_rows(X: Any, what: str = WHAT, min_rows: int = 2, keep_dtype: bool = F
     return X
 
 
-def as_traversals(X: Any, places: Any = None, keep_dtype: bool = False) -> Traversals:
+def as_traversals(
+    X: Any, places: Any = None, keep_dtype: bool = False, names: Sequence[str] | None = None
+) -> Traversals:
     """Validate training input (see the module docstring) and stack it.
 
     Raises :class:`DimensionMismatchError` for traversals of different widths, or of
     different lengths without ``places``, and :class:`InvalidInputError` for a bad index.
+    A :class:`Traversals` (already validated) is returned as it is. ``names`` (file names,
+    upload fields) are quoted beside the traversal numbers in messages.
     """
+    if isinstance(X, Traversals):
+        if places is not None:
+            raise InvalidInputError("validated traversals carry their places; give no places")
+        return X
     if not is_several(X):
         if isinstance(X, list | tuple) and len(X) == 0:
             raise EmptyInputError("no traversals given: pass one array or a list of arrays")
@@ -95,22 +104,24 @@ def as_traversals(X: Any, places: Any = None, keep_dtype: bool = False) -> Trave
             return Traversals(rows, None, int(rows.shape[0]), 1)
         idx = check_places(places, rows.shape[0], "the place index")
         return Traversals(rows, idx, count_places(idx, rows.shape[0]), 1)
+    def name(i: int) -> str:  # 1-based
+        return f"traversal {i}" + (f" ({names[i - 1]})" if names and len(names) >= i else "")
+
     parts = [
-        check_rows(x, f"traversal {i + 1} of the {WHAT}", 1 if places is not None else 2,
-                   keep_dtype)
+        check_rows(x, f"{name(i + 1)} of the {WHAT}", 1 if places is not None else 2, keep_dtype)
         for i, x in enumerate(X)
     ]  # fmt: skip
     first = parts[0].shape
     for i, p in enumerate(parts[1:], start=2):
         if p.shape[1] != first[1]:
             raise DimensionMismatchError(
-                f"traversal {i} has {p.shape[1]} columns but traversal 1 has {first[1]}: "
+                f"{name(i)} has {p.shape[1]} columns but {name(1)} has {first[1]}: "
                 "every traversal needs descriptors of one width",
                 traversal=i, columns=int(p.shape[1]), expected=int(first[1]),
             )  # fmt: skip
         if places is None and p.shape[0] != first[0]:
             raise DimensionMismatchError(
-                f"traversal {i} has {p.shape[0]} rows but traversal 1 has {first[0]}: "
+                f"{name(i)} has {p.shape[0]} rows but {name(1)} has {first[0]}: "
                 "traversals without a place index must be frame-aligned (one row per place, "
                 "same length); give a place index per traversal otherwise",
                 traversal=i, rows=int(p.shape[0]), expected=int(first[0]),
@@ -127,7 +138,7 @@ def as_traversals(X: Any, places: Any = None, keep_dtype: bool = False) -> Trave
             f"traversal), got {given}", traversals=len(parts), place_indices=given,
         )  # fmt: skip
     idx = np.concatenate([
-        check_places(pl, p.shape[0], f"the place index of traversal {i + 1}")
+        check_places(pl, p.shape[0], f"the place index of {name(i + 1)}")
         for i, (pl, p) in enumerate(zip(places, parts, strict=True))
     ])  # fmt: skip
     return Traversals(rows, idx, count_places(idx, rows.shape[0]), len(parts))
