@@ -77,7 +77,6 @@ def parse_traversals(
     for i, upload in enumerate(files):
 
         def check(n_rows: int, n_features: int, i: int = i) -> None:
-            check_width(n_features)
             if first and n_features != first[0][1]:
                 raise DimensionMismatchError(
                     f"{label(i)} has {n_features} columns but {label(0)} has {first[0][1]}: "
@@ -91,6 +90,7 @@ def parse_traversals(
                     "place, same length); send one 'places' file per traversal otherwise",
                     traversal=i + 1, rows=n_rows, expected=first[0][0],
                 )  # fmt: skip
+            check_width(n_features)
             if not first:
                 first.append((n_rows, n_features))
                 if not places:
