@@ -14,6 +14,7 @@ from starlette.datastructures import FormData, UploadFile
 from service.api.auth import require_admin
 from service.api.schemas import ADMIN_ERRORS, ROUTE_FORM, MapParam, TextParam, body_doc
 from service.core.localization import LocalizationService
+from service.core.traversal_upload import UploadedFile
 from service.errors import RequestValidationError
 from service.wire import (
     MAP_NAME_PATTERN,
@@ -27,6 +28,8 @@ from service.wire import (
     Version,
 )
 
+ROUTE_FILE_FIELDS = ("file", "places")
+
 router = APIRouter(prefix="/v1", tags=["admin"], dependencies=[Depends(require_admin)],
                    responses=ADMIN_ERRORS)  # fmt: skip
 
@@ -38,25 +41,31 @@ def _service(request: Request) -> LocalizationService:
     return request.app.state.context.service  # type: ignore[no-any-return]
 
 
-def _route_form(form: FormData) -> tuple[UploadFile, TrainingOptions]:
-    """The route file and the training options of an upload form (422 naming a bad field)."""
+def _route_form(form: FormData) -> tuple[list[UploadFile], list[UploadFile], TrainingOptions]:
+    """The route files (one per traversal), their place-index files and the training options
+    of an upload form (422 naming a bad field)."""
     files = [(k, v) for k, v in form.multi_items() if isinstance(v, UploadFile)]
-    extra_files = sorted({k for k, _ in files if k != "file"})
+    extra_files = sorted({k for k, _ in files if k not in ROUTE_FILE_FIELDS})
     if extra_files:
         raise RequestValidationError(f"unexpected file field(s) {', '.join(extra_files)}; "
-                                     "send the route as 'file'", fields=extra_files)  # fmt: skip
-    if len(files) != 1:
-        raise RequestValidationError(
-            "file: send the route as exactly one 'file' field" + (f" ({len(files)} sent)" if files else ""),
-            field="file",
-        )  # fmt: skip
+                                     "send the route as 'file' (once per traversal) and "
+                                     "place indices as 'places'", fields=extra_files)  # fmt: skip
+    routes = [v for k, v in files if k == "file"]
+    places = [v for k, v in files if k == "places"]
+    if not routes:
+        raise RequestValidationError("file: send the route as one 'file' field per traversal",
+                                     field="file")  # fmt: skip
     fields: dict[str, Any] = {}
     for key in {k for k, v in form.multi_items() if isinstance(v, str)}:
         values = form.getlist(key)
         if key != "periods" and len(values) > 1:
             raise RequestValidationError(f"{key}: the field is given {len(values)} times", field=key)
         fields[key] = values if key == "periods" else values[0]
-    return files[0][1], TrainingOptions.model_validate(fields)
+    return routes, places, TrainingOptions.model_validate(fields)
+
+
+def _uploaded(files: list[UploadFile]) -> list[UploadedFile]:
+    return [UploadedFile(f.filename or f"upload {i + 1}", f.file) for i, f in enumerate(files)]
 
 
 @router.post("/maps/{name}/routes", status_code=202, response_model=Job,
@@ -71,19 +80,21 @@ async def upload_route(
         Header(alias="Idempotency-Key", description="the same key for the same map returns the same job"),
     ] = None,
 ) -> Job:
-    """A multipart form: the route as ``file`` and any training options. Everything that can
+    """A multipart form: the route as ``file`` and any training options; several ``file``
+    fields are traversals of the same places (frame-aligned, or with one ``places`` file per
+    traversal, in the same order: the int place 0…N−1 of each row). Everything that can
     be checked from the upload itself is checked before the answer: 202 and the queued job
     (poll ``GET /v1/jobs/{id}``). The same ``Idempotency-Key`` for the same map returns the
     existing job instead of a second one; so does the same route (by content) with the same
     parameters and extractor, unless ``force``: then the answer is 200 with ``reused: true``
     (and the job's ``version`` once it succeeded)."""
     async with request.form() as form:
-        file, options = _route_form(form)
+        routes, places, options = _route_form(form)
         job = await run_in_threadpool(
             functools.partial(
-                _service(request).submit_route, name, file.filename or "upload", file.file,
+                _service(request).submit_route, name, _uploaded(routes),
                 options.training_params(), options.extractor_config(), idempotency_key,
-                **options.upload_flags(),
+                places=_uploaded(places), **options.upload_flags(),
             )
         )  # fmt: skip
     response.headers["Location"] = f"/v1/jobs/{job.id}"

@@ -82,7 +82,11 @@ IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
 IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
     "map": MAP_FIELD, "images": {"type": "array", "minItems": 1, "items": BINARY}}}  # fmt: skip
 ROUTE_FORM = form_schema(TrainingOptions, {"file": {
-    **BINARY, "description": ".npy/.npz descriptors, or a .zip/.tar of images in route order"}})  # fmt: skip
+    **BINARY, "description": ".npy/.npz descriptors, or a .zip/.tar of images in route order; "
+    "repeat the field for several traversals of the same places"}})  # fmt: skip
+ROUTE_FORM["properties"]["places"] = {
+    **BINARY, "description": "optional, once per 'file' in the same order: an integer .npy "
+    "giving the place (0…N−1) of every row of that traversal"}  # fmt: skip
 
 
 def body_doc(json_model: type[Any] | None, multipart: dict[str, Any] | None = None,

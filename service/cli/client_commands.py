@@ -170,7 +170,12 @@ def _report_job(gp: GridplaceClient, job: Job, as_json: bool) -> None:
 @cli_errors
 def upload(
     map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
-    route: Annotated[Path, typer.Argument(help=".npy/.npz descriptors or .zip/.tar of images")],
+    routes: Annotated[list[Path], typer.Argument(
+        help=".npy/.npz descriptors or .zip/.tar of images; several files are traversals of "
+        "the same places (frame-aligned, or with --places)", show_default=False)],
+    places: Annotated[list[Path] | None, typer.Option(
+        "--places", help="int .npy: the place (0..N-1) of every row of one route file; give "
+        "it once per file, in the files' order", show_default=False)] = None,
     trainer: Annotated[str | None, typer.Option(help="logreg | svm | ridge | torch")] = None,
     patterns: Annotated[
         int | None, typer.Option("--patterns", "-k", help="number of encoders k")
@@ -204,7 +209,8 @@ def upload(
     timeout: Timeout = 30.0,
     as_json: AsJson = False,
 ) -> None:
-    """Upload ROUTE and train a new version of MAP (exit 2 if the job fails with --wait)."""
+    """Upload ROUTES (one traversal per file) and train a new version of MAP (exit 2 if the
+    job fails with --wait)."""
     parsed = parse_periods(periods, "--periods")
     period_list = list(parsed) if parsed is not None else None
     given = {"trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
@@ -217,10 +223,10 @@ def upload(
         extra[key.strip()] = value.split(",") if key.strip() == "periods" else value.strip()
     options = options_of(None, {**extra, **{k: v for k, v in given.items() if v is not None}})
     with _client(url, token, timeout) as gp:
-        with console.status(
-            f"uploading {route.name} ({route.stat().st_size if route.is_file() else 0:,} B)"
-        ):
-            job = gp.upload_route(map_name, route, options, idempotency_key=idempotency_key)
+        size = sum(r.stat().st_size for r in routes if r.is_file())
+        with console.status(f"uploading {', '.join(r.name for r in routes)} ({size:,} B)"):
+            job = gp.upload_route(map_name, routes[0] if len(routes) == 1 else routes, options,
+                                  idempotency_key=idempotency_key, places=places)  # fmt: skip
         if not wait:
             if as_json:
                 _print_json(job)
@@ -332,6 +338,7 @@ def versions(
         "active",
         "kind",
         "frames",
+        "traversals",
         "d",
         "stored bytes",
         "P@0 (train)",
@@ -340,7 +347,8 @@ def versions(
         table.add_column(col, no_wrap=col in ("kind", "created"))
     for v in found:
         p0 = v.metrics.get("train_precision_at_0")
-        table.add_row(str(v.version), "*" if v.active else "", v.kind, str(v.n_frames), str(v.n_features),
+        table.add_row(str(v.version), "*" if v.active else "", v.kind, str(v.n_frames),
+                      str(v.n_traversals), str(v.n_features),
                       f"{v.footprint.get('actual_bytes', v.artifact_bytes):,}",
                       f"{p0:.3f}" if isinstance(p0, (int, float)) else "-", _when(v.created_at))  # fmt: skip
     console.print(table)

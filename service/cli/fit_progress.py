@@ -17,12 +17,14 @@ from rich.progress import (
 )
 
 from service.encoding import ChunkedPlaceEncoder, PhaseEncoder
+from service.encoding.traversals import Traversals
 
 
-def fit_with_progress(model: PhaseEncoder | ChunkedPlaceEncoder, X: np.ndarray,
+def fit_with_progress(model: PhaseEncoder | ChunkedPlaceEncoder, X: np.ndarray | Traversals,
                       console: Console, title: str) -> float:  # fmt: skip
-    """Fit ``model`` on ``X`` under a progress bar (per class of every digit); returns the
-    seconds the fit took. The bar is removed when the fit ends."""
+    """Fit ``model`` on ``X`` (one route, or validated traversals of it) under a progress
+    bar (per class of every digit); returns the seconds the fit took. The bar is removed
+    when the fit ends."""
     columns = (TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
     with Progress(*columns, console=console, transient=True) as bar:
@@ -36,5 +38,6 @@ def fit_with_progress(model: PhaseEncoder | ChunkedPlaceEncoder, X: np.ndarray,
         return time.perf_counter() - start
 
 
-def fit_title(model: Any, n_frames: int) -> str:
-    return f"training {model.kind} ({model.trainer}) on {n_frames} frames"
+def fit_title(model: Any, n_frames: int, n_traversals: int = 1) -> str:
+    several = f" × {n_traversals} traversals" if n_traversals > 1 else ""
+    return f"training {model.kind} ({model.trainer}) on {n_frames} frames{several}"

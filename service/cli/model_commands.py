@@ -24,6 +24,7 @@ from service.encoding import (
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
 from service.encoding.sequence import SequenceConfig, sequence_localize
+from service.encoding.traversals import as_traversals
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
 
@@ -32,8 +33,13 @@ console = Console()
 
 @cli_errors
 def train(
-    reference: Annotated[Path, typer.Argument(help=".npy descriptors, rows in route order")],
+    references: Annotated[list[Path], typer.Argument(
+        help=".npy descriptors, rows in route order; several files are traversals of the same "
+        "places (frame-aligned, or with --places)", show_default=False)],
     out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory (must not exist)")],
+    places: Annotated[list[Path] | None, typer.Option(
+        "--places", help="int .npy: the place (0..N-1) of every row of one descriptor file; "
+        "give it once per file, in the files' order", show_default=False)] = None,
     patterns: Annotated[int, typer.Option("--patterns", "-k", help="number of encoders k")] = 2,
     periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
     rho: Annotated[float, typer.Option(help="fraction of columns per encoder")] = 0.5,
@@ -49,7 +55,8 @@ def train(
     top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
     n_jobs: Annotated[int, typer.Option(help="chunk processes, or one-vs-rest threads without chunks (-1 = all)")] = 1,
 ) -> None:
-    """Train a model on a route and save it as a new artifact."""
+    """Train a model on a route (one or several traversals of it) and save it as a new
+    artifact."""
     chosen = {"trainer": trainer} if trainer is not None else {}
     params = ModelParams.parse(
         n_patterns=patterns, periods=parse_periods(periods, "--periods"), rho=rho, gamma=gamma,
@@ -57,14 +64,25 @@ def train(
         top_chunks=top_chunks, n_jobs=n_jobs, **chosen,
     )  # fmt: skip
     check_new_artifact_dir(out)  # before minutes of training, not after
-    X = check_descriptors(load_npy(reference), min_rows=2, what=str(reference))
+    if places and len(places) != len(references):
+        raise InvalidParameterError(
+            f"{len(references)} descriptor file(s) need {len(references)} --places file(s) "
+            f"(one per file, in order), got {len(places)}"
+        )
+    arrays = [load_npy(path) for path in references]
+    index = [load_npy(path) for path in places] if places else None
+    if len(arrays) == 1:  # one file: messages name it, as before
+        arrays = [check_descriptors(arrays[0], min_rows=1 if index else 2, what=str(references[0]))]
+    tr = as_traversals(arrays, index, names=[p.name for p in references])
     model = build_model(params)
-    seconds = fit_with_progress(model, X, console, fit_title(model, X.shape[0]))
-    manifest = save_model(model, out, extra={"train_seconds": seconds, "source": str(reference)})
+    title = fit_title(model, tr.n_places, tr.n_traversals)
+    seconds = fit_with_progress(model, tr, console, title)
+    source = str(references[0]) if len(references) == 1 else [str(p) for p in references]
+    manifest = save_model(model, out, extra={"train_seconds": seconds, "source": source})
     fp = manifest["footprint"]
     console.print(
         f"saved {out}: {model.kind} trainer={params.trainer} "
-        f"N={model.n_frames_} d={model.n_features_in_} "
+        f"N={model.n_frames_} d={model.n_features_in_} traversals={model.n_traversals_} "
         f"paper={fp['paper_bytes']:.0f} B actual={fp['actual_bytes']} B in {seconds:.1f}s"
     )
 

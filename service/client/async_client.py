@@ -97,14 +97,32 @@ class AsyncGridplaceClient:
                                 **filter_params: Any) -> SequenceLocalization:  # fmt: skip
         return await self._send(calls.localize_sequence(map, descriptors, filter_params))
 
-    async def upload_route(self, map: str, route: RouteSource, options: TrainingOptions | None = None,
-                           *, idempotency_key: str | None = None, filename: str | None = None,
+    async def upload_route(self, map: str, route: RouteSource | Sequence[RouteSource],
+                           options: TrainingOptions | None = None, *,
+                           idempotency_key: str | None = None, filename: str | None = None,
+                           places: Sequence[RouteSource] | None = None,
                            **params: Any) -> Job:  # fmt: skip
+        """As :meth:`GridplaceClient.upload_route` (several traversals, ``places``)."""
         opts = calls.options_of(options, params)
-        if not isinstance(route, (bytes, np.ndarray)):  # read off the event loop
-            route, filename = await asyncio.to_thread(calls.read_route_file, route, filename)
-        return await self._send(calls.upload_route(map, route, opts, idempotency_key, filename),
-                                timeout=self.upload_timeout)  # fmt: skip
+        if isinstance(route, list | tuple):  # several traversals: each file read off the loop
+            routes = [await self._read(r, None) for r in route]
+            sent: RouteSource | list[RouteSource] = [body for body, _ in routes]
+            names: list[str | None] | None = [name for _, name in routes]
+        else:
+            sent, filename = await self._read(route, filename)
+            names = None
+        index = None if places is None else [(await self._read(p, None))[0] for p in places]
+        call = calls.upload_route(map, sent, opts, idempotency_key, filename, index, names)
+        return await self._send(call, timeout=self.upload_timeout)
+
+    @staticmethod
+    async def _read(
+        source: RouteSource, filename: str | None
+    ) -> tuple[bytes | np.ndarray, str | None]:
+        """Bytes (or the array) of an upload part, files read off the event loop."""
+        if isinstance(source, bytes | np.ndarray):
+            return source, filename
+        return await asyncio.to_thread(calls.read_route_file, source, filename)
 
     async def get_job(self, job_id: str) -> Job:
         return await self._send(calls.get_job(job_id))

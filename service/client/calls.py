@@ -195,28 +195,55 @@ def localize_images(map_name: str, images: Sequence[ImageSource]) -> Call[BatchL
 
 def upload_route(
     map_name: str,
-    route: RouteSource,
+    route: RouteSource | Sequence[RouteSource],
     options: TrainingOptions,
     idempotency_key: str | None,
     filename: str | None,
+    places: Sequence[RouteSource] | None = None,
+    names: Sequence[str | None] | None = None,
 ) -> Call[Job]:
+    """One route file, or several (traversals of the same places: one ``file`` field each,
+    ``names`` their upload names), and optionally one place-index file (or int array) per
+    traversal as ``places`` fields."""
+    routes = list(route) if isinstance(route, list | tuple) else [route]
+    if not routes:
+        raise EmptyInputError("upload_route needs at least one route file")
+    if places is not None and len(places) != len(routes):
+        raise InvalidInputError(
+            f"{len(routes)} route file(s) need {len(routes)} place-index file(s) (one per "
+            f"file, in the same order), got {len(places)}", files=len(routes),
+            places=len(places),
+        )  # fmt: skip
     opened: list[IO[bytes]] = []
-    body: bytes | IO[bytes]
-    if isinstance(route, np.ndarray):
-        body, name = _npy_bytes(route), filename or "route.npy"
-    elif isinstance(route, bytes):
-        body, name = route, filename or "route.npy"
-    else:
-        path = Path(route)
-        if not path.is_file():
-            raise InvalidInputError(f"route file not found: {path}", path=str(path))
-        body = path.open("rb")
-        opened.append(body)
-        name = filename or path.name
+    try:
+        given = list(names) if names else [filename if len(routes) == 1 else None] * len(routes)
+        files = [("file", _upload_part(r, given[i] if i < len(given) else None,
+                                       f"route-{i + 1}.npy" if len(routes) > 1 else "route.npy",
+                                       opened)) for i, r in enumerate(routes)]  # fmt: skip
+        files += [("places", _upload_part(p, None, f"places-{i + 1}.npy", opened))
+                  for i, p in enumerate(places or [])]  # fmt: skip
+    except BaseException:
+        for fh in opened:
+            fh.close()
+        raise
     headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
     return Call("POST", f"/v1/maps/{_seg(map_name)}/routes", _reader(Job), admin=True, kwargs={
-        "files": {"file": (name, body)}, "data": options.form(), "headers": headers},
-        files=opened)  # fmt: skip
+        "files": files, "data": options.form(), "headers": headers}, files=opened)  # fmt: skip
+
+
+def _upload_part(source: RouteSource, filename: str | None, default: str,
+                 opened: list[IO[bytes]]) -> tuple[str, bytes | IO[bytes]]:  # fmt: skip
+    """A multipart file part: an array (as ``.npy``), bytes, or a file opened for streaming."""
+    if isinstance(source, np.ndarray):
+        return filename or default, _npy_bytes(source)
+    if isinstance(source, bytes):
+        return filename or default, source
+    path = Path(source)
+    if not path.is_file():
+        raise InvalidInputError(f"route file not found: {path}", path=str(path))
+    fh = path.open("rb")
+    opened.append(fh)
+    return filename or path.name, fh
 
 
 def get_job(job_id: str) -> Call[Job]:

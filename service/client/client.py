@@ -157,19 +157,22 @@ class GridplaceClient:
     def upload_route(
         self,
         map: str,
-        route: RouteSource,
+        route: RouteSource | Sequence[RouteSource],
         options: TrainingOptions | None = None,
         *,
         idempotency_key: str | None = None,
         filename: str | None = None,
+        places: Sequence[RouteSource] | None = None,
         **params: Any,
     ) -> Job:
         """Upload a route (``.npy``/``.npz`` path, ndarray, or ``.zip``/``.tar`` of images) and
-        start training a new version; returns the queued job. ``params`` are
+        start training a new version; returns the queued job. A list of routes is several
+        traversals of the same places, frame-aligned, or with ``places``: one integer index
+        (path or array: the place 0…N−1 of every row) per traversal. ``params`` are
         :class:`TrainingOptions` fields (``trainer="ridge"``, ``rho=0.5``, ``periods=[60, 60]``…).
         Resending with the same ``idempotency_key`` returns the same job."""
         opts = calls.options_of(options, params)
-        return self._send(calls.upload_route(map, route, opts, idempotency_key, filename),
+        return self._send(calls.upload_route(map, route, opts, idempotency_key, filename, places),
                           timeout=self.upload_timeout)  # fmt: skip
 
     def get_job(self, job_id: str) -> Job:

@@ -8,13 +8,14 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import LoadedModel, ModelStore
-from service.core.uploads import parse_route, store_descriptors
+from service.core.traversal_upload import UploadedFile, parse_traversals, store_traversals
 from service.encoding import ModelParams, check_descriptors, check_route
 from service.errors import (
     ArtifactError,
@@ -73,6 +74,14 @@ def decode_float32(data: bytes, n_features: int | None, what: str = "body") -> n
             expected=n_features, got=int(flat.size),
         )  # fmt: skip
     return flat.reshape(-1, n_features)
+
+
+def _relative(path: Path, data_dir: Path) -> str:
+    """``path`` relative to ``data_dir`` when inside it (a job's files move with it)."""
+    try:
+        return str(path.resolve().relative_to(data_dir.resolve()))
+    except ValueError:
+        return str(path.resolve())
 
 
 class LocalizationService:
@@ -227,21 +236,24 @@ class LocalizationService:
     def submit_route(
         self,
         name: str,
-        filename: str,
-        fh: IO[bytes],
+        files: Sequence[UploadedFile],
         params: dict[str, Any],
         extractor: dict[str, Any] | None = None,
         idempotency_key: str | None = None,
         *,
+        places: Sequence[UploadedFile] = (),
         allow_dimension_change: bool = False,
         force: bool = False,
     ) -> JobInfo:
         """Validate and store an uploaded route, then queue its training (202 semantics).
 
-        A route of another descriptor width than the map's active version is refused (409)
-        unless ``allow_dimension_change``. The same route with the same parameters and
-        extractor as an earlier upload answers with that upload's job (``reused``; its
-        version when it succeeded) instead of training a copy, unless ``force``."""
+        ``files``: one descriptor file (or image archive) per traversal of the route, frame-
+        aligned unless ``places`` gives one place-index file per traversal
+        (:mod:`service.core.traversal_upload`). A route of another descriptor width than the
+        map's active version is refused (409) unless ``allow_dimension_change``. The same
+        route with the same parameters and extractor as an earlier upload answers with that
+        upload's job (``reused``; its version when it succeeded) instead of training a copy,
+        unless ``force``."""
         check_map_name(name)
         if idempotency_key is not None and not 1 <= len(idempotency_key) <= 200:
             raise InvalidInputError("Idempotency-Key must be 1-200 characters")
@@ -251,27 +263,32 @@ class LocalizationService:
         image_config = parse_extractor_config(config)  # the default for image archives
         extractor_once = functools.cache(lambda: make_extractor(config))  # built (checked) once
 
-        def check(n_frames: int, n_features: int) -> None:
-            """Everything the shape decides, before the data is read (npy header, image count)."""
+        def check_width(n_features: int) -> None:
+            """What the width decides, before the data is read (npy header, image count)."""
             d = image_config.n_features if config is not None else None  # no network built
             if d is not None and d != n_features:
                 raise DimensionMismatchError(
                     f"the extractor {image_config.kind} produces d={d} but the uploaded "
                     f"descriptors have d={n_features}", expected=d, got=n_features,
                 )  # fmt: skip
-            check_route(model_params, n_frames, n_features)
             self.registry.check_width(name, n_features, allow_dimension_change)
 
+        def check_params(n_places: int, n_features: int) -> None:
+            check_route(model_params, n_places, n_features)
+
         limit = self.settings.max_upload_mb * 1024 * 1024
-        X, source_kind = parse_route(filename, fh, limit, extractor_once, check,
-                                     image_features=image_config.n_features)  # fmt: skip
+        tr, source_kind = parse_traversals(files, places, limit, extractor_once, check_width,
+                                           check_params, image_config.n_features)  # fmt: skip
         if source_kind == "images" and config is None:
             config = image_config.model_dump()
-        route = store_descriptors(self.settings.data_dir, X, source_kind)  # only valid data lands
-        source = RouteSource(content_sha256=route.sha256, n_frames=route.n_frames,
-                             n_features=route.n_features,
-                             allow_dimension_change=allow_dimension_change)  # fmt: skip
-        job = self.backend.submit(name, route.path, model_params, config, idempotency_key,
+        data_dir = self.settings.data_dir
+        stored = store_traversals(data_dir, tr, source_kind)  # only valid data lands
+        places_file = None if stored.places is None else _relative(stored.places, data_dir)
+        source = RouteSource(content_sha256=stored.content_sha256, n_frames=stored.n_places,
+                             n_features=stored.n_features,
+                             allow_dimension_change=allow_dimension_change,
+                             n_traversals=stored.n_traversals, places=places_file)  # fmt: skip
+        job = self.backend.submit(name, stored.route, model_params, config, idempotency_key,
                                   source=source, force=force)  # fmt: skip
         self.metrics.jobs_submitted.inc()
         return job

@@ -200,13 +200,22 @@ class _HashingWriter:
 def store_descriptors(data_dir: Path, X: np.ndarray, source_kind: str) -> StoredRoute:
     """Write ``X`` to ``data_dir/uploads/<sha256 of the .npy>.npy`` atomically (tmp, fsync,
     rename), streamed and hashed on the way: no copy of the route is made in memory."""
+    final, sha, _ = store_array(data_dir, X, np.float32)
+    return StoredRoute(final, sha, int(X.shape[0]), int(X.shape[1]), source_kind)
+
+
+def store_array(data_dir: Path, X: np.ndarray, dtype: type[np.generic]) -> tuple[Path, str, bool]:
+    """Write ``X`` as ``dtype`` to ``data_dir/uploads/<sha256 of the .npy>.npy`` atomically;
+    returns the path, the sha256 and whether this call created the file (an identical upload
+    may have stored it before)."""
     folder = data_dir / "uploads"
     folder.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".upload-", suffix=".tmp")
+    created = False
     try:
         with os.fdopen(fd, "wb") as out:
             writer = _HashingWriter(out)
-            np.save(writer, np.ascontiguousarray(X, dtype=np.float32), allow_pickle=False)  # type: ignore[arg-type]
+            np.save(writer, np.ascontiguousarray(X, dtype=dtype), allow_pickle=False)  # type: ignore[arg-type]
             out.flush()
             os.fsync(out.fileno())
         sha = writer.sha.hexdigest()
@@ -215,6 +224,7 @@ def store_descriptors(data_dir: Path, X: np.ndarray, source_kind: str) -> Stored
             Path(tmp).unlink()
         else:
             os.replace(tmp, final)
+            created = True
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -223,4 +233,4 @@ def store_descriptors(data_dir: Path, X: np.ndarray, source_kind: str) -> Stored
         os.fsync(dfd)
     finally:
         os.close(dfd)
-    return StoredRoute(final, sha, int(X.shape[0]), int(X.shape[1]), source_kind)
+    return final, sha, created

@@ -1,6 +1,7 @@
 """Model artifacts: a directory with ``tensors.safetensors`` and ``manifest.json``.
 
-The manifest records the schema version, the model kind and all its parameters, N, d, the
+The manifest records the schema version, the model kind and all its parameters, N (the
+number of places), how many traversals of them trained the model, d, the
 periods, the storage dtype, the footprint and the sha256 of every file. Saving is atomic:
 everything is written into a temporary sibling directory, fsynced, and renamed into place,
 so a reader sees either no artifact or a complete one; an existing artifact is never
@@ -88,6 +89,8 @@ def build_manifest(
         "created_at": datetime.now(UTC).isoformat(),
         "params": params,
         "n_frames": model.n_frames_,
+        "n_places": model.n_frames_,
+        "n_traversals": getattr(model, "n_traversals_", 1),
         "n_features": model.n_features_in_,
         "dtype": params.get("dtype"),
         "meta": meta,

@@ -89,7 +89,10 @@ class PlaceRecognizer(BaseEstimator):  # type: ignore[misc]
         cls, params: dict[str, Any], arrays: dict[str, np.ndarray], meta: dict[str, Any]
     ) -> PlaceRecognizer: ...
 
-    def _set_fitted(self, n_frames: int, n_features: int) -> None:
+    def _set_fitted(self, n_frames: int, n_features: int, n_traversals: int = 1) -> None:
+        """``n_frames`` is the number of places; ``n_traversals`` how many traversals of them
+        the model was trained on."""
         self.__dict__.pop("_serving_plan", None)  # what serving precomputed is stale
         self.n_frames_ = int(n_frames)
         self.n_features_in_ = int(n_features)
+        self.n_traversals_ = int(n_traversals)

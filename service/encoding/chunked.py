@@ -2,9 +2,10 @@
 
 A query goes chunk classifier → its ``top_chunks`` most likely chunks → each chunk's encoder
 → the candidate with the best joint log-probability (chunk and digits together) → global
-index. Chunks train independently (in parallel processes with ``n_jobs``), each on its own
-rows only; the building blocks are public so a distributed queue can run one chunk per job
-and :meth:`ChunkedPlaceEncoder.assemble` the result.
+index. Chunks are ranges of places; they train independently (in parallel processes with
+``n_jobs``), each on the rows of its own places only (of every traversal,
+:mod:`service.encoding.traversals`); the building blocks are public so a distributed queue
+can run one chunk per job and :meth:`ChunkedPlaceEncoder.assemble` the result.
 """
 
 from __future__ import annotations
@@ -23,7 +24,14 @@ from service.encoding.normalization import Normalizer
 from service.encoding.patterns import select_columns
 from service.encoding.progress import ProgressFn, Steps
 from service.encoding.serving_plan import plan_for
-from service.encoding.validation import check_descriptors
+from service.encoding.traversals import (
+    as_traversals,
+    check_rows,
+    chunk_of,
+    chunk_rows,
+    group_means,
+    per_place_C,
+)
 from service.errors import InvalidParameterError
 
 _ENCODER_PARAMS = (
@@ -39,12 +47,7 @@ def check_route(X: Any) -> np.ndarray:
     """Validate training descriptors without converting them: a float array (or a read-only
     memory map of a large route) is checked for shape and finiteness in row blocks and
     returned as it is; anything else goes through :func:`check_descriptors` (float64)."""
-    if not (isinstance(X, np.ndarray) and X.dtype in (np.float32, np.float64) and X.ndim == 2):
-        return check_descriptors(X, min_rows=2, what="training descriptors")
-    check_descriptors(X[:2], min_rows=2, what="training descriptors")  # shape and emptiness
-    for s in range(0, X.shape[0], _BLOCK_ROWS):
-        check_descriptors(X[s : s + _BLOCK_ROWS], what="training descriptors")
-    return X
+    return check_rows(X, keep_dtype=True)
 
 
 def plan_chunks(n_frames: int, n_chunks: int) -> np.ndarray:
@@ -71,9 +74,13 @@ def fit_chunk_encoder(
     normalizer: Normalizer,
     params: dict[str, Any],
     progress: ProgressFn | None = None,
+    places: np.ndarray | None = None,
 ) -> PhaseEncoder:
-    """Train one chunk's encoder on that chunk's raw rows only."""
-    return _chunk_encoder(params)._fit_normalised(normalizer.transform(X_chunk), progress)
+    """Train one chunk's encoder on that chunk's raw rows only; ``places`` gives each row's
+    place counted from the chunk's first (``None``: row i is place i)."""
+    return _chunk_encoder(params)._fit_normalised(
+        normalizer.transform(X_chunk), progress, places
+    )
 
 
 def fit_chunk_classifier(
@@ -82,18 +89,25 @@ def fit_chunk_classifier(
     normalizer: Normalizer,
     params: dict[str, Any],
     progress: ProgressFn | None = None,
+    places: np.ndarray | None = None,
 ) -> DigitClassifier:
     """Pattern-learned linear classifier whose classes are the chunk ids (``progress``
-    counts one unit per chunk).
+    counts one unit per chunk); ``places`` gives each row's place (``None``: row i is
+    place i), and every row learns its place's chunk.
 
-    Chunks are contiguous, so the BCSS comes from per-chunk means computed one chunk at a
-    time; only the ``d̃`` selected columns of all rows are ever materialised.
+    The BCSS comes from per-chunk means computed a chunk (or a row block) at a time; only
+    the ``d̃`` selected columns of all rows are ever materialised.
     """
     n_chunks = len(bounds) - 1
-    sizes = np.diff(bounds).astype(np.float64)
-    means = np.stack(
-        [normalizer.transform(X[s:e]).mean(axis=0) for s, e in zip(bounds[:-1], bounds[1:])]
-    )
+    if places is None:
+        labels = np.repeat(np.arange(n_chunks), np.diff(bounds))
+        sizes = np.diff(bounds).astype(np.float64)
+        means = np.stack(
+            [normalizer.transform(X[s:e]).mean(axis=0) for s, e in zip(bounds[:-1], bounds[1:])]
+        )
+    else:
+        labels = chunk_of(places, bounds)
+        sizes, means = group_means(X, labels, n_chunks, normalizer.transform)
     grand = sizes @ means / sizes.sum()
     scores = np.einsum("c,cd->d", sizes, (means - grand) ** 2)
     rho = params.get("chunk_rho") or params.get("rho", 0.5)
@@ -106,11 +120,11 @@ def fit_chunk_classifier(
         X_sel[s : s + _BLOCK_ROWS] = (block - mean) / scale
     return DigitClassifier.fit_selected(
         X_sel,
-        np.repeat(np.arange(n_chunks), np.diff(bounds)),
+        labels,
         n_chunks,
         pattern,
         trainer=params.get("trainer", "logreg"),
-        C=params.get("C", 4.0),
+        C=per_place_C(params.get("C", 4.0), int(bounds[-1]), X.shape[0]),
         dtype=params.get("dtype", "float32"),
         random_state=params.get("random_state", 0),
         n_jobs=params.get("n_jobs", 1),
@@ -156,25 +170,34 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.n_jobs = n_jobs
         self.random_state = random_state
 
-    def fit(self, X: Any, y: Any = None, progress: ProgressFn | None = None) -> ChunkedPlaceEncoder:
+    def fit(
+        self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None
+    ) -> ChunkedPlaceEncoder:
+        """Fit on one traversal (rows in route order) or several, frame-aligned or with
+        ``places`` (:mod:`service.encoding.traversals`); chunks are ranges of places."""
         del y
-        X = check_route(X)
+        tr = as_traversals(X, places, keep_dtype=True)
+        X, idx = tr.rows, tr.places
         if int(self.top_chunks) < 1:
             raise InvalidParameterError(f"top_chunks must be >= 1, got {self.top_chunks}")
         PhaseEncoder(**{k: getattr(self, k) for k in _ENCODER_PARAMS})._validate_params(
             X.shape[1]
         )
-        bounds = plan_chunks(X.shape[0], int(self.n_chunks))
+        bounds = plan_chunks(tr.n_places, int(self.n_chunks))
         params = self.get_params()
         normalizer = Normalizer.fit(X)
         steps = self._steps(progress, bounds, params)
-        classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0))
+        classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0), idx)
         steps.done(0)
+        rows = None if idx is None else chunk_rows(idx, bounds)
         # Chunks fitted in this process report per class; in child processes, per chunk.
         inline = int(self.n_jobs) == 1
         jobs = (
-            delayed(fit_chunk_encoder)(X[s:e], normalizer, params,
-                                       steps.scope(c + 1) if inline else None)
+            delayed(fit_chunk_encoder)(
+                X[s:e] if rows is None else X[rows[c]], normalizer, params,
+                steps.scope(c + 1) if inline else None,
+                None if rows is None or idx is None else idx[rows[c]] - s,
+            )
             for c, (s, e) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))
         )  # fmt: skip
         encoders: list[PhaseEncoder] = []
@@ -182,7 +205,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         for enc in runner(jobs):
             encoders.append(enc)
             steps.done(len(encoders))
-        return self._assemble(normalizer, bounds, classifier, encoders)
+        return self._assemble(normalizer, bounds, classifier, encoders, tr.n_traversals)
 
     @staticmethod
     def _steps(progress: ProgressFn | None, bounds: np.ndarray, params: dict[str, Any]) -> Steps:
@@ -201,9 +224,10 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         bounds: np.ndarray,
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
+        n_traversals: int = 1,
     ) -> ChunkedPlaceEncoder:
         """Build a fitted model from parts trained elsewhere (e.g. one queue job per chunk)."""
-        return cls(**params)._assemble(normalizer, bounds, classifier, encoders)
+        return cls(**params)._assemble(normalizer, bounds, classifier, encoders, n_traversals)
 
     def _assemble(
         self,
@@ -211,6 +235,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         bounds: np.ndarray,
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
+        n_traversals: int = 1,
     ) -> ChunkedPlaceEncoder:
         bounds = np.asarray(bounds, dtype=np.int64)
         if len(encoders) != len(bounds) - 1 or classifier.n_classes != len(encoders):
@@ -222,7 +247,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.chunk_bounds_ = bounds
         self.chunk_classifier_ = classifier
         self.chunk_encoders_ = list(encoders)
-        self._set_fitted(int(bounds[-1]), int(normalizer.mean.shape[0]))
+        self._set_fitted(int(bounds[-1]), int(normalizer.mean.shape[0]), n_traversals)
         return self
 
     # -- querying -----------------------------------------------------------------------
@@ -264,6 +289,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
             "n_features": self.n_features_in_,
             "chunk_bounds": self.chunk_bounds_.tolist(),
             "chunks": chunks,
+            "n_traversals": self.n_traversals_,
         }
         return arrays, meta
 
@@ -283,4 +309,5 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
             np.asarray(meta["chunk_bounds"], dtype=np.int64),
             DigitClassifier.from_arrays(arrays, "chunk_clf", d),
             encoders,
+            int(meta.get("n_traversals", 1)),
         )

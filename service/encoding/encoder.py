@@ -18,7 +18,7 @@ from service.encoding.progress import ProgressFn, Steps
 from service.encoding.quantization import check_dtype
 from service.encoding.serving_plan import plan_for
 from service.encoding.trainers import TRAINERS
-from service.encoding.validation import check_descriptors
+from service.encoding.traversals import as_traversals, per_place_C
 from service.errors import InvalidParameterError
 
 
@@ -93,17 +93,22 @@ class PhaseEncoder(PlaceRecognizer):
         if not self.C > 0:
             raise InvalidParameterError(f"C must be > 0, got {self.C}")
 
-    def fit(self, X: Any, y: Any = None, progress: ProgressFn | None = None) -> PhaseEncoder:
-        """Learn the encoders from descriptors whose rows are frames in route order.
+    def fit(
+        self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None
+    ) -> PhaseEncoder:
+        """Learn the encoders from descriptors whose rows are frames in route order, or from
+        several traversals of the route, frame-aligned or with ``places`` giving each row's
+        place (:mod:`service.encoding.traversals`).
 
         ``progress(detail, done, total)`` follows the classes of every digit
         (:mod:`service.encoding.progress`)."""
-        del y  # the labels are the row order
-        X = check_descriptors(X, min_rows=2, what="training descriptors")
+        del y  # the labels are the places (the row order of one traversal)
+        tr = as_traversals(X, places)
+        X = tr.rows
         self._validate_params(X.shape[1])
         self.normalizer_ = Normalizer.fit(X) if self.normalize else None
         Xn = self.normalizer_.transform(X) if self.normalizer_ is not None else X
-        return self._fit_normalised(Xn, progress)
+        return self._fit_normalised(Xn, progress, tr.places, tr.n_traversals)
 
     def periods_for(self, n_frames: int) -> tuple[int, ...]:
         """The periods a fit on ``n_frames`` frames uses (its progress counts their sum)."""
@@ -111,11 +116,21 @@ class PhaseEncoder(PlaceRecognizer):
             return validate_periods(self.periods, n_frames)
         return auto_periods(n_frames, int(self.n_patterns))
 
-    def _fit_normalised(self, Xn: np.ndarray, progress: ProgressFn | None = None) -> PhaseEncoder:
-        n, d = Xn.shape
+    def _fit_normalised(
+        self,
+        Xn: np.ndarray,
+        progress: ProgressFn | None = None,
+        places: np.ndarray | None = None,
+        n_traversals: int = 1,
+    ) -> PhaseEncoder:
+        """Fit on normalised rows; ``places`` (validated, every place 0…N−1 present) gives
+        each row's place, ``None`` means row i is place i."""
+        d = Xn.shape[1]
+        n = Xn.shape[0] if places is None else int(places.max()) + 1
         self._validate_params(d)
         self.periods_ = self.periods_for(n)
-        labels = index_to_labels(np.arange(n), self.periods_)
+        labels = index_to_labels(np.arange(n) if places is None else places, self.periods_)
+        C = per_place_C(self.C, n, Xn.shape[0])
         k = len(self.periods_)
         steps = Steps(progress, [f"digit {j + 1}/{k}" for j in range(k)], self.periods_)
         self.digits_ = []
@@ -127,7 +142,7 @@ class PhaseEncoder(PlaceRecognizer):
                 rho=self.rho,
                 gamma=self.gamma,
                 trainer=self.trainer,
-                C=self.C,
+                C=C,
                 dtype=self.dtype,
                 random_state=self.random_state,
                 n_jobs=self.n_jobs,
@@ -136,7 +151,7 @@ class PhaseEncoder(PlaceRecognizer):
             steps.done(j)
         if not self.normalize:
             self.normalizer_ = None
-        self._set_fitted(n, d)
+        self._set_fitted(n, d, n_traversals)
         return self
 
     @property
@@ -191,6 +206,7 @@ class PhaseEncoder(PlaceRecognizer):
             "n_frames": self.n_frames_,
             "n_features": self.n_features_in_,
             "periods": list(self.periods_),
+            "n_traversals": self.n_traversals_,
         }
         return arrays, meta
 
@@ -212,5 +228,5 @@ class PhaseEncoder(PlaceRecognizer):
         model.normalizer_ = (
             Normalizer.from_arrays(arrays, f"{prefix}norm") if model.normalize else None
         )
-        model._set_fitted(int(meta["n_frames"]), d)
+        model._set_fitted(int(meta["n_frames"]), d, int(meta.get("n_traversals", 1)))
         return model

@@ -32,6 +32,7 @@ from service.encoding.encoder import PhaseEncoder
 from service.encoding.normalization import Normalizer
 from service.encoding.phases import validate_periods
 from service.encoding.progress import is_per_class
+from service.encoding.traversals import Traversals, check_places, chunk_rows, count_places
 from service.errors import (
     DimensionMismatchError,
     EmptyInputError,
@@ -90,6 +91,36 @@ def open_route(path: Path) -> np.ndarray:
             f"the route must be a (frames, features) array with >= 2 frames, got {X.shape}"
         )
     return X
+
+
+def open_places(data_dir: Path, spec: JobSpec, n_rows: int) -> np.ndarray | None:
+    """The place of every route row (``None``: one traversal, row i is place i), checked
+    against the route: one integer per row, every place 0…N−1 present."""
+    source = spec.source
+    if source is None or source.places is None:
+        return None
+    path = Path(source.places)
+    path = path if path.is_absolute() else data_dir / path
+    try:
+        idx = np.load(path, allow_pickle=False)
+    except FileNotFoundError as exc:
+        raise EmptyInputError(f"the place-index file {path} is missing") from exc
+    except (ValueError, OSError) as exc:
+        raise UnsafeFileError(f"the place-index file {path} is not a plain .npy: {exc}") from exc
+    idx = check_places(idx, n_rows, f"the place index {path}")
+    count_places(idx, n_rows)
+    return idx
+
+
+def _traversals(data_dir: Path, spec: JobSpec, X: np.ndarray) -> Traversals:
+    """The job's route as validated traversals (rows converted to float64)."""
+    places = open_places(data_dir, spec, X.shape[0])
+    n_places = X.shape[0] if places is None else int(places.max()) + 1
+    return Traversals(_rows(X, 0, X.shape[0]), places, n_places, _n_traversals(spec))
+
+
+def _n_traversals(spec: JobSpec) -> int:
+    return 1 if spec.source is None else spec.source.n_traversals
 
 
 def _rows(X: np.ndarray, start: int, stop: int) -> np.ndarray:
@@ -183,13 +214,12 @@ def train_single(data_dir: Path, job_id: str) -> int:
     start = time.perf_counter()
     X = open_route(registry.route_path(spec))
     _check_finite(X)
-    _validate(params, X.shape[1], [X.shape[0]])
-    model = build_model(params).fit(
-        _rows(X, 0, X.shape[0]), progress=FitReporter(registry, job_id, "fit")
-    )
+    route = _traversals(data_dir, spec, X)
+    _validate(params, X.shape[1], [route.n_places])
+    model = build_model(params).fit(route, progress=FitReporter(registry, job_id, "fit"))
     fit_s = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s}, part="train")
-    version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s})
+    version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s}, route.places)
     registry.finish_job(job_id, version, timings)
     return version
 
@@ -202,7 +232,9 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
     start = time.perf_counter()
     X = open_route(registry.route_path(spec))
     _check_finite(X)
-    bounds = plan_chunks(X.shape[0], params.n_chunks)
+    places = open_places(data_dir, spec, X.shape[0])
+    n_places = X.shape[0] if places is None else int(places.max()) + 1
+    bounds = plan_chunks(n_places, params.n_chunks)
     _validate(params, X.shape[1], np.diff(bounds).tolist())
     workspace = Workspace(data_dir, job_id)
     prep = Prep(Normalizer.fit(X), bounds)
@@ -210,7 +242,7 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
                       lambda: workspace.save_prep(prep))  # fmt: skip
     registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start},
                              part="prepare")  # fmt: skip
-    return {"n_frames": int(X.shape[0]), "n_features": int(X.shape[1]),
+    return {"n_frames": n_places, "n_features": int(X.shape[1]),
             "n_chunks": params.n_chunks}  # fmt: skip
 
 
@@ -224,8 +256,15 @@ def train_chunk(data_dir: Path, job_id: str, chunk: int) -> float:
     if not workspace.has_chunk(chunk):  # else an earlier run finished it, unrecorded
         s, e = int(prep.bounds[chunk]), int(prep.bounds[chunk + 1])
         X = open_route(registry.route_path(spec))
-        encoder = fit_chunk_encoder(_rows(X, s, e), prep.normalizer, params.model_dump(),
-                                    FitReporter(registry, job_id, f"chunk_{chunk}"))  # fmt: skip
+        places = open_places(data_dir, spec, X.shape[0])
+        if places is None:
+            rows, local = _rows(X, s, e), None
+        else:  # the rows of the chunk's places, of every traversal
+            mine = chunk_rows(places, prep.bounds)[chunk]
+            rows, local = np.asarray(X[mine], dtype=np.float64), places[mine] - s
+        encoder = fit_chunk_encoder(rows, prep.normalizer, params.model_dump(),
+                                    FitReporter(registry, job_id, f"chunk_{chunk}"),
+                                    local)  # fmt: skip
         _write_while_open(registry, job_id, workspace, f"chunk {chunk}",
                           lambda: workspace.save_chunk(chunk, encoder))  # fmt: skip
     seconds = time.perf_counter() - start
@@ -243,7 +282,8 @@ def train_classifier(data_dir: Path, job_id: str) -> float:
     prep = workspace.load_prep()
     X = open_route(registry.route_path(spec))
     classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump(),
-                                      FitReporter(registry, job_id, "chunk_classifier"))  # fmt: skip
+                                      FitReporter(registry, job_id, "chunk_classifier"),
+                                      open_places(data_dir, spec, X.shape[0]))  # fmt: skip
     _write_while_open(registry, job_id, workspace, "the chunk classifier",
                       lambda: workspace.save_classifier(classifier, X.shape[1]))
     seconds = time.perf_counter() - start
@@ -263,23 +303,28 @@ def assemble(data_dir: Path, job_id: str) -> int:
     encoders = [workspace.load_chunk(c) for c in range(prep.n_chunks)]
     model = ChunkedPlaceEncoder.assemble(
         build_model(params).get_params(), prep.normalizer, prep.bounds,
-        workspace.load_classifier(X.shape[1]), encoders,
+        workspace.load_classifier(X.shape[1]), encoders, _n_traversals(spec),
     )  # fmt: skip
     timing = {"assemble": time.perf_counter() - start}
     registry.record_progress(job_id, timings=timing)
-    version, timings = _publish(registry, spec, params, model, X, timing)
+    places = open_places(data_dir, spec, X.shape[0])
+    version, timings = _publish(registry, spec, params, model, X, timing, places)
     workspace.remove()  # before the job reads succeeded: then nothing of it is left behind
     registry.finish_job(job_id, version, timings)
     return version
 
 
-def evaluate_on_route(model: PlaceRecognizer, X: np.ndarray) -> dict[str, Any]:
-    """Training-set precision at 0 and 5 frames on (at most EVAL_ROWS) evenly spaced frames."""
+def evaluate_on_route(
+    model: PlaceRecognizer, X: np.ndarray, places: np.ndarray | None = None
+) -> dict[str, Any]:
+    """Training-set precision at 0 and 5 frames on (at most EVAL_ROWS) evenly spaced rows
+    (of every traversal; ``places``: each row's place, ``None``: row i is place i)."""
     idx = np.unique(np.linspace(0, X.shape[0] - 1, min(X.shape[0], EVAL_ROWS)).astype(np.int64))
     pred = model.predict(np.asarray(X[idx], dtype=np.float64))
+    truth = idx if places is None else places[idx]
     return {
-        "train_precision_at_0": precision_at(pred, idx, 0),
-        "train_precision_at_5": precision_at(pred, idx, 5),
+        "train_precision_at_0": precision_at(pred, truth, 0),
+        "train_precision_at_5": precision_at(pred, truth, 5),
         "eval_frames": int(idx.size),
     }
 
@@ -291,11 +336,12 @@ def _publish(
     model: PlaceRecognizer,
     X: np.ndarray,
     timings: dict[str, float],
+    places: np.ndarray | None = None,
 ) -> tuple[int, dict[str, float]]:
     """Evaluate and publish; returns the version and the timings to record on success."""
     _started(registry, spec.job_id, "publish")
     start = time.perf_counter()
-    metrics: dict[str, Any] = evaluate_on_route(model, X)
+    metrics: dict[str, Any] = evaluate_on_route(model, X, places)
     eval_s = time.perf_counter() - start
     job = registry.get_job(spec.job_id)
     stage_seconds = {**job.timings, **timings, "evaluate": eval_s}
@@ -305,6 +351,7 @@ def _publish(
         stage_seconds=stage_seconds,
         backend=spec.backend,
         n_chunks=params.n_chunks,
+        n_traversals=_n_traversals(spec),
     )
     if registry.get_job(spec.job_id).done:  # timed out or failed meanwhile: publish nothing
         raise JobFinished(f"job {spec.job_id} finished before its version was published")

@@ -88,10 +88,16 @@ _V3 = (
     "ALTER TABLE jobs ADD COLUMN progress TEXT NOT NULL DEFAULT '{}'",
 )
 
+_V4 = (
+    # how many traversals of the route's places a version was trained on
+    "ALTER TABLE versions ADD COLUMN n_traversals BIGINT NOT NULL DEFAULT 1",
+)
+
 MIGRATIONS: Sequence[tuple[int, str, Sequence[str]]] = (
     (1, "maps, versions, jobs and the generation counter", _V1),
     (2, "upload content hashes, version metadata, job parts and retries", _V2),
     (3, "fit progress of a job's parts", _V3),
+    (4, "traversals a version was trained on", _V4),
 )
 SCHEMA_VERSION = MIGRATIONS[-1][0]
 

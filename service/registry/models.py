@@ -25,10 +25,18 @@ class RouteSource(BaseModel):
 
     model_config = ConfigDict(frozen=True)
 
-    content_sha256: str = Field(description="sha256 of the stored float32 descriptors")
-    n_frames: int
+    content_sha256: str = Field(
+        description="sha256 of the stored float32 descriptors (of every traversal, and of "
+        "their place index, when there are several)"
+    )
+    n_frames: int = Field(description="places on the route")
     n_features: int
     allow_dimension_change: bool = False
+    n_traversals: int = Field(1, ge=1, description="traversals of the places uploaded")
+    places: str | None = Field(
+        None, description="int64 .npy of every route row's place, relative to data_dir when "
+        "inside it; None: one traversal, row i is place i",
+    )  # fmt: skip
 
 
 class JobSpec(BaseModel):

@@ -368,9 +368,10 @@ class Registry(JobTable):
             conn.execute(
                 text("INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
                      "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id, "
-                     "content_sha256, extra) VALUES (:map, :version, :n_frames, :n_features, "
-                     ":kind, :params, :extractor, :created_at, :sha256, :footprint, "
-                     ":artifact_bytes, :metrics, :job_id, :content_sha256, :extra)"),
+                     "content_sha256, extra, n_traversals) VALUES (:map, :version, :n_frames, "
+                     ":n_features, :kind, :params, :extractor, :created_at, :sha256, :footprint, "
+                     ":artifact_bytes, :metrics, :job_id, :content_sha256, :extra, "
+                     ":n_traversals)"),
                 {"map": name, "version": version, "n_frames": int(manifest["n_frames"]),
                  "n_features": n_features, "kind": manifest["kind"],
                  "params": dumps(record.params),
@@ -378,7 +379,7 @@ class Registry(JobTable):
                  "created_at": now, "sha256": sha, "footprint": dumps(footprint),
                  "artifact_bytes": artifact_bytes, "metrics": dumps(record.metrics),
                  "job_id": job_id, "content_sha256": record.content_sha256,
-                 "extra": dumps(extra)},
+                 "extra": dumps(extra), "n_traversals": int(manifest.get("n_traversals", 1))},
             )  # fmt: skip
             if activate:
                 conn.execute(text("UPDATE maps SET active_version = :v WHERE name = :m"),
@@ -444,6 +445,7 @@ class Registry(JobTable):
             version=row["version"],
             active=row["version"] == active,
             n_frames=row["n_frames"],
+            n_traversals=row["n_traversals"],
             n_features=row["n_features"],
             kind=row["kind"],
             params=loads(row["params"]),

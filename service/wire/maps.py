@@ -23,7 +23,10 @@ class Version(Answer):
     map: str
     version: int
     active: bool
-    n_frames: int
+    n_frames: int = Field(description="places on the route (the indices localize answers)")
+    n_traversals: int = Field(
+        1, description="traversals of the route's places the version was trained on"
+    )
     n_features: int = Field(description="descriptor size d that queries must have")
     kind: str = Field(description="phase_encoder or chunked_encoder")
     params: dict[str, Any] = Field(description="the training parameters")

@@ -9,7 +9,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from service.encoding import ModelParams, PlaceRecognizer, build_model, load_npy
+from service.encoding.traversals import Traversals
 from service.errors import ConflictError, DimensionChangeError, NotFoundError, UnavailableError
 from service.wire import Job as JobInfo
 from service.wire import MapSummary as MapInfo
@@ -109,6 +112,7 @@ class FakeRegistry:
             fp = model.footprint().to_dict()
             self._versions[(name, version)] = VersionInfo(
                 map=name, version=version, active=False, n_frames=model.n_frames_,
+                n_traversals=model.n_traversals_,
                 n_features=model.n_features_in_, kind=model.kind, params=params,
                 extractor=extractor, created_at=now, sha256="0" * 64, footprint=fp,
                 artifact_bytes=int(fp["actual_bytes"]), metrics=metrics, job_id=job_id,
@@ -151,7 +155,11 @@ class InlineBackend:
                       finished_at=None, error=None, version=None,
                       idempotency_key=idempotency_key)  # fmt: skip
         self.submitted.append((map_name, route, params, extractor))
-        model = build_model(params).fit(load_npy(route))
+        X = load_npy(route)
+        if source is not None and source.places is not None:  # several traversals
+            places = np.load(route.parent.parent / source.places)
+            X = Traversals(X, places, int(places.max()) + 1, source.n_traversals)
+        model = build_model(params).fit(X)
         info = self.registry.publish(map_name, model, params=params.model_dump(mode="json"),
                                      extractor=extractor, metrics={}, job_id=job.id)  # fmt: skip
         job = job.model_copy(update={"state": "succeeded", "stage": "done",

@@ -82,7 +82,7 @@ def test_the_openapi_schema_is_built_from_the_wire_models() -> None:
     assert body["application/json"]["schema"]["oneOf"] == LocalizeRequest.model_json_schema()["oneOf"]
     form = spec["paths"]["/v1/maps/{name}/routes"]["post"]["requestBody"]["content"]
     props = form["multipart/form-data"]["schema"]["properties"]
-    assert set(props) == {*TrainingOptions.model_fields, "file"}
+    assert set(props) == {*TrainingOptions.model_fields, "file", "places"}
     assert props["rho"] == {"type": "number", "exclusiveMinimum": 0.0, "maximum": 1.0,
                             "title": "Rho", "description": "fraction of columns per encoder"}  # fmt: skip
     version = spec["paths"]["/v1/maps/{name}/versions/{version}"]["get"]["parameters"][1]
