@@ -75,6 +75,38 @@ def test_the_model_follows_places_not_row_order(seed: int, tiny_route: Synthetic
     np.testing.assert_array_equal(aligned.predict(A), shuffled.predict(A))
 
 
+@given(seed=st.integers(0, 2**16))
+@settings(
+    max_examples=5, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+def test_chunks_follow_places_not_row_order(seed: int, tiny_route: SyntheticRoute) -> None:
+    rng = np.random.default_rng(seed)
+    A, B = tiny_route.reference, tiny_route.query
+    n = A.shape[0]
+    aligned = ChunkedPlaceEncoder(n_chunks=3, trainer="ridge").fit([A, B])
+    perm = rng.permutation(2 * n)
+    X, places = np.concatenate([A, B])[perm], np.tile(np.arange(n), 2)[perm]
+    shuffled = ChunkedPlaceEncoder(n_chunks=3, trainer="ridge").fit(X, places=places)
+    np.testing.assert_array_equal(aligned.chunk_bounds_, shuffled.chunk_bounds_)
+    np.testing.assert_array_equal(aligned.chunk_classifier_.columns,
+                                  shuffled.chunk_classifier_.columns)  # fmt: skip
+    for a, b in zip(aligned.chunk_encoders_, shuffled.chunk_encoders_, strict=True):
+        assert a.n_frames_ == b.n_frames_
+        for da, db in zip(a.digits_, b.digits_, strict=True):
+            np.testing.assert_array_equal(da.columns, db.columns)
+    np.testing.assert_array_equal(aligned.predict(B), shuffled.predict(B))
+
+
+def test_chunks_in_parallel_processes_train_the_same_model(tiny_route: SyntheticRoute) -> None:
+    A, B = tiny_route.reference, tiny_route.query
+    keep = np.arange(0, A.shape[0], 2)
+    X, places = [A, B[keep]], [np.arange(A.shape[0]), keep]
+    inline = ChunkedPlaceEncoder(n_chunks=2, trainer="ridge").fit(X, places=places)
+    parallel = ChunkedPlaceEncoder(n_chunks=2, trainer="ridge", n_jobs=2).fit(X, places=places)
+    np.testing.assert_array_equal(inline.predict(B), parallel.predict(B))
+    assert parallel.n_traversals_ == 2
+
+
 @pytest.mark.parametrize("chunks", [1, 3])
 def test_two_identical_traversals_give_one_traversals_model(
     chunks: int, tiny_route: SyntheticRoute
