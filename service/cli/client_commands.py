@@ -171,7 +171,7 @@ def _report_job(gp: GridplaceClient, job: Job, as_json: bool) -> None:
 def upload(
     map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
     routes: Annotated[list[Path], typer.Argument(
-        help=".npy/.npz descriptors or .zip/.tar of images; several files are traversals of "
+        metavar="ROUTE", help=".npy/.npz descriptors or .zip/.tar of images; several files are traversals of "
         "the same places (frame-aligned, or with --places)", show_default=False)],
     places: Annotated[list[Path] | None, typer.Option(
         "--places", help="int .npy: the place (0..N-1) of every row of one route file; give "
@@ -209,7 +209,7 @@ def upload(
     timeout: Timeout = 30.0,
     as_json: AsJson = False,
 ) -> None:
-    """Upload ROUTES (one traversal per file) and train a new version of MAP (exit 2 if the
+    """Upload ROUTE (one file per traversal) and train a new version of MAP (exit 2 if the
     job fails with --wait)."""
     parsed = parse_periods(periods, "--periods")
     period_list = list(parsed) if parsed is not None else None

@@ -34,7 +34,7 @@ console = Console()
 @cli_errors
 def train(
     references: Annotated[list[Path], typer.Argument(
-        help=".npy descriptors, rows in route order; several files are traversals of the same "
+        metavar="REFERENCE", help=".npy descriptors, rows in route order; several files are traversals of the same "
         "places (frame-aligned, or with --places)", show_default=False)],
     out: Annotated[Path, typer.Option("--out", "-o", help="new artifact directory (must not exist)")],
     places: Annotated[list[Path] | None, typer.Option(
