@@ -35,6 +35,7 @@ from service.encoding.exact_decode import (
     table_decode,
 )
 from service.encoding.phases import index_to_labels, place_values
+from service.encoding.single_query import SingleQueryPath
 
 Precision = Literal["float32", "float64"]
 _U32 = 2.0**-24  # unit roundoff of float32
@@ -184,6 +185,7 @@ class ServingPlan:
             self._digit_error[c, : len(p.digits)] = [d.error for d in p.digits]
         self._chunk_error = 0.0 if self.chunk is None else 2.0 * self.chunk.error
         self._tables = any(p.labels is not None or len(p.digits) != self.k for p in self.phases)
+        self._single = SingleQueryPath.of(self)
 
     # -- helpers --------------------------------------------------------------------
     def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
@@ -234,7 +236,11 @@ class ServingPlan:
 
     # -- localize -------------------------------------------------------------------
     def decode(self, Q: np.ndarray, precision: Precision = "float32") -> Decoded:
-        """Exact decode of validated float64 queries ``(n, d)``."""
+        """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path)."""
+        if precision == "float32" and Q.shape[0] == 1 and self._single is not None:
+            one = self._single.decode(Q)
+            if one is not None:
+                return Decoded(*one)
         if precision == "float64":
             index, chunk, score, _ = self._decode(self.normalise(Q), "float64", None)
             return Decoded(index, chunk, score, np.zeros(Q.shape[0], bool))

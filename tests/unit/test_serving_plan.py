@@ -191,3 +191,75 @@ def test_a_refit_model_gets_a_new_plan() -> None:
     assert plan_for(model) is first
     model.fit(route.reference[:150])
     assert plan_for(model) is not first and plan_for(model).n_frames == 150
+
+
+def _one_by_one(plan: ServingPlan, Q: np.ndarray) -> tuple[np.ndarray, ...]:
+    rows = [plan.decode(Q[i : i + 1]) for i in range(Q.shape[0])]
+    fields = ("index", "chunk", "log_score", "rescored")
+    return tuple(np.concatenate([getattr(r, f) for r in rows]) for f in fields)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "int8"])
+@pytest.mark.parametrize("top_chunks", [1, 2, 5])
+def test_the_single_query_path_answers_as_the_batch_path(dtype: str, top_chunks: int) -> None:
+    """One row takes :mod:`service.encoding.single_query`: same answers as in a batch."""
+    route = smooth_route(437, 24, seed=13)  # uneven chunks: digits of unequal periods (padding)
+    model = ChunkedPlaceEncoder(n_chunks=5, n_patterns=2, rho=0.5, trainer="ridge",
+                                dtype=dtype, top_chunks=top_chunks).fit(route.reference)  # fmt: skip
+    plan = ServingPlan(model)
+    assert plan._single is not None
+    Q = np.concatenate([route.query, np.random.default_rng(3).standard_normal((40, 24)) * 3])
+    index, chunk, score, _ = _one_by_one(plan, Q)
+    batch = plan.decode(Q)  # more than one row: the batch path
+    np.testing.assert_array_equal(index, batch.index)
+    np.testing.assert_array_equal(chunk, batch.chunk)
+    np.testing.assert_allclose(score, batch.log_score, rtol=1e-6, atol=1e-9)
+    F = brute_force(model, Q)
+    np.testing.assert_array_equal(F[np.arange(Q.shape[0]), index], F.max(axis=1))
+
+
+def test_the_single_query_path_of_a_phase_encoder_with_a_temperature() -> None:
+    route = smooth_route(300, 16, seed=6)
+    model = PhaseEncoder(periods=(20, 17), rho=0.6, trainer="ridge").fit(route.reference)  # ∏τ > N
+    object.__setattr__(model.digits_[1], "temperature", 0.7)
+    model._set_fitted(model.n_frames_, model.n_features_in_)
+    plan = ServingPlan(model)
+    assert plan._single is not None and plan._single.beta is not None
+    Q = np.concatenate([route.query, np.random.default_rng(5).standard_normal((30, 16)) * 4])
+    index, chunk, score, _ = _one_by_one(plan, Q)
+    F = brute_force(model, Q)
+    np.testing.assert_array_equal(F[np.arange(Q.shape[0]), index], F.max(axis=1))
+    np.testing.assert_allclose(score, F.max(axis=1), rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(chunk, 0)
+
+
+def test_a_single_near_tie_and_a_huge_query_fall_back_to_float64() -> None:
+    route = smooth_route(200, 16, seed=2)
+    model = PhaseEncoder(periods=(20, 10), rho=1.0, trainer="ridge", dtype="float64").fit(
+        route.reference
+    )
+    dc = model.digits_[1]
+    W, b = dc.linear.weight.copy(), dc.linear.bias.copy()
+    W[3], b[3] = W[4] * (1 + 1e-9), b[4]  # float32 cannot rank classes 3 and 4
+    model.digits_[1] = DigitClassifier(dc.columns, QuantizedLinear(W, b))
+    model._set_fitted(model.n_frames_, model.n_features_in_)
+    plan = ServingPlan(model)
+    Q = route.reference[np.arange(200) % 10 == 4].astype(np.float64)  # digit 1 is 4: near tie
+    index, _, _, rescored = _one_by_one(plan, Q)
+    assert rescored.any()
+    np.testing.assert_array_equal(rescored, plan.decode(Q).rescored)  # the same certificate
+    np.testing.assert_array_equal(index, plan.decode(Q, "float64").index)
+    huge = route.reference[:1].astype(np.float64) * 1e30  # z-scores beyond the 1-row path's range
+    np.testing.assert_array_equal(plan.decode(huge).index, plan.decode(huge, "float64").index)
+
+
+def test_label_tables_are_left_to_the_batch_path() -> None:
+    route = smooth_route(300, 16, seed=9)
+    model = _RedundantEncoder(periods=(20, 15), trainer="ridge").fit(route.reference)
+    Xn = model._transform(route.reference.astype(np.float64))
+    model.digits_.append(DigitClassifier.fit(Xn, np.arange(300) % 7, 7, rho=0.5, gamma=None,
+                                             trainer="ridge", C=4.0, dtype="float32",
+                                             random_state=0))  # fmt: skip
+    model._set_fitted(model.n_frames_, model.n_features_in_)
+    assert ServingPlan(model)._single is None
+    check_exact(model, route.query[:1].astype(np.float64))

@@ -1,0 +1,128 @@
+"""The one-query path of a :class:`~service.encoding.serving_plan.ServingPlan`.
+
+A single query (the stream frame, the REST single request) is the latency case: the batch
+path's grouping of (query, chunk) pairs, its padded scatter and its index bookkeeping are
+pure overhead for one row. This path computes the same thing with 1-row specialisations:
+the z-scores straight into float32, ``‖z‖`` from one dot product, the chunk classifier's
+ranking and log-sum-exp on its few scores as Python floats, one product per (consulted chunk,
+digit) written into one ``(m, k, τ_max)`` buffer, and the decode's reductions over that
+buffer at once (the bias table carries ``−inf`` past each digit's period).
+
+The certificate is the batch path's (the same float32 error bounds, the same margins), so the
+answer is that of the exact float64 decode: a query it cannot certify is decoded in float64,
+and anything this path does not handle (label tables, digits missing in a chunk, z-scores
+near float32 overflow) goes to the batch path. Confidences agree with the batch path's to
+float32 rounding. No buffer is shared between calls: a plan serves many threads at once.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from service.encoding.serving_plan import ServingPlan
+
+#: index, chunk, log-score and "decoded in float64" of the query, each an array of one
+Answer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+_SLACK = 1e-12  # the batch path's relative slack for float64 rounding of the reference
+_ZZ_LIMIT = float(np.finfo(np.float32).max)  # ‖z‖² finite in float32: every |z_i| < 2^64
+
+
+class SingleQueryPath:
+    """Precomputed 1-row layout of a plan (``None`` from :meth:`of` where it does not apply)."""
+
+    def __init__(self, plan: ServingPlan) -> None:
+        self.plan = plan
+        n_chunks, k, width = len(plan.phases), plan.k, plan.width
+        self.bias = np.full((n_chunks, k, width), -np.inf)  # −inf past each digit's period
+        beta = np.ones((n_chunks, k, 1))
+        self.padded = False
+        for c, phase in enumerate(plan.phases):
+            for j, dg in enumerate(phase.digits):
+                self.bias[c, j, : dg.n_classes] = dg.bias
+                beta[c, j, 0] = dg.beta
+                self.padded |= dg.n_classes < width
+        self.beta = None if (beta == 1.0).all() else beta
+        self.digits = [[(dg.columns, dg.weight, dg.n_classes) for dg in phase.digits]
+                       for phase in plan.phases]  # fmt: skip
+        self.twice_digit_error = 2.0 * plan._digit_error
+        self.pair_error = plan._error + plan._chunk_error
+
+    @classmethod
+    def of(cls, plan: ServingPlan) -> SingleQueryPath | None:
+        """Mixed-radix chunks with ``k`` digits each (the rest is the batch path's)."""
+        if plan._tables or plan.width < 1:
+            return None
+        return cls(plan)
+
+    def decode(self, Q: np.ndarray) -> Answer | None:
+        """Exact decode of one validated float64 query ``(1, d)``; ``None``: use the batch path."""
+        p = self.plan
+        z = np.empty(Q.shape[1], dtype=np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            if p.mean is None:
+                z[:] = Q[0]
+            else:
+                np.divide(np.subtract(Q[0], p.mean), p.scale, out=z)
+            zz = float(np.dot(z, z))
+        if not zz < _ZZ_LIMIT:  # large, infinite or NaN z-scores: the batch path's checks
+            return None
+        zerr = 1.001 * math.sqrt(zz)  # ‖z‖ (float32 sum: ≤ d·u off)
+        top, top_lp, certain = self._chunks(z, zerr)
+        m, k = len(top), p.k
+        buf = (np.zeros if self.padded else np.empty)((m, k, p.width), dtype=np.float32)
+        for r, c in enumerate(top):
+            for j, (columns, weight, n_classes) in enumerate(self.digits[c]):
+                np.matmul(weight, z.take(columns), out=buf[r, j, :n_classes])
+        S = buf + self.bias[top]  # float32 products + float64 biases, as the batch path
+        if self.beta is not None:
+            S *= self.beta[top]
+        width = S.shape[2]
+        digits = S.argmax(axis=2)
+        if width >= 2:
+            top2 = np.partition(S, width - 2, axis=2)
+            best_d, second = top2[:, :, -1], top2[:, :, -2]
+        else:
+            best_d, second = S[:, :, 0], np.full((m, k), -np.inf)
+        log_norm = np.log(np.add.reduce(np.exp(S - best_d[:, :, None]), axis=2))
+        total = (top_lp - np.add.reduce(log_norm, axis=1)).tolist()
+        local = np.add.reduce(digits * p._place[top], axis=1).tolist()
+        win = max(range(m), key=total.__getitem__)  # the first best rank on ties
+        chunk, score = top[win], total[win]
+        ok = certain and local[win] < int(p._sizes[chunk])
+        if ok:  # every digit's argmax holds if its gap beats two class errors
+            ok = bool(((best_d[win] - second[win]) > self.twice_digit_error[chunk] * zerr).all())
+        if ok and m > 1:  # the winner must beat every other chunk's upper bound by both errors
+            err = (self.pair_error[top] * zerr).tolist()
+            limit = _SLACK * (1.0 + abs(score))
+            ok = all(score - total[r] - err[r] - err[win] > limit for r in range(m) if r != win)
+        if not ok:  # not certain in float32: the float64 decode answers
+            index, chunks, scores, _ = p._decode(p.normalise(Q), "float64", None)
+            return index, chunks, scores, np.ones(1, bool)
+        index = np.array([local[win] + int(p.bounds[chunk])], dtype=np.int64)
+        return index, np.array([chunk], dtype=np.int64), np.array([score]), np.zeros(1, bool)
+
+    def _chunks(self, z: np.ndarray, zerr: float) -> tuple[list[int], np.ndarray, bool]:
+        """Consulted chunks (best first), their log-probabilities, and whether the set of
+        top chunks is certain under the float32 error."""
+        p = self.plan
+        if p.chunk is None:
+            return [0], np.zeros(1), True
+        ch = p.chunk
+        s = ch.weight @ z.take(ch.columns) + ch.bias
+        if ch.beta != 1.0:
+            s *= ch.beta
+        scores = s.tolist()
+        order = sorted(range(len(scores)), key=lambda i: -scores[i])  # stable, as argsort
+        top = order[: p.top]
+        best = scores[order[0]]
+        lse = math.log(math.fsum(math.exp(v - best) for v in scores))
+        top_lp = np.array([scores[c] - best - lse for c in top])
+        certain = True
+        if p.top < len(p.phases):
+            certain = scores[top[-1]] - scores[order[p.top]] > 2.0 * ch.error * zerr
+        return top, top_lp, certain
