@@ -66,6 +66,22 @@ def _timed(fn: Any, reps: int) -> dict[str, float]:
             "wall_p99_s": float(np.percentile(wall, 99))}  # fmt: skip
 
 
+def _timed_alternating(fns: dict[str, Any], reps: int) -> dict[str, dict[str, float]]:
+    """:func:`_timed` of several functions called in turn, so that all see the same load."""
+    for fn in fns.values():
+        fn()
+    wall: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(reps):
+        for key, fn in fns.items():
+            w, c = time.perf_counter(), time.thread_time()
+            fn()
+            cpu[key].append(time.thread_time() - c)
+            wall[key].append(time.perf_counter() - w)
+    return {k: {"wall_s": float(np.median(wall[k])), "cpu_s": float(np.median(cpu[k])),
+                "wall_p99_s": float(np.percentile(wall[k], 99))} for k in fns}  # fmt: skip
+
+
 # -- child processes ---------------------------------------------------------------------
 def _train_child(route: str, registry: str, params: dict[str, Any], out: Any) -> None:
     import psutil
@@ -91,7 +107,8 @@ def _serve_child(route: str, registry: str, n_queries: int, n_single: int, batch
 
     from service.encoding import precision_at
     from service.encoding.decoding import reference_localize
-    from service.encoding.serving_plan import plan_for
+    from service.encoding import check_descriptors
+    from service.encoding.serving_plan import ServingPlan, plan_for
     from service.registry import Registry
 
     X = np.load(route, mmap_mode="r")
@@ -115,7 +132,16 @@ def _serve_child(route: str, registry: str, n_queries: int, n_single: int, batch
         ref_index, _, _ = reference_localize(model, Q[:batch])
         res["agreement_with_reference"] = float(np.mean(ref_index == loc.index[:batch]))
         singles = iter(range(10**9))
-        res["single"] = _timed(lambda: model.localize(Q[next(singles) % n_queries][None, :]), n_single)
+        batch_path = ServingPlan(model)  # the same plan without its one-query path (before)
+        batch_path._single = None
+
+        def one_by_batch_path() -> Any:
+            q = Q[next(singles) % n_queries][None, :]
+            return batch_path.localize(check_descriptors(q, n_features=model.n_features_in_))
+
+        res.update(_timed_alternating({
+            "single": lambda: model.localize(Q[next(singles) % n_queries][None, :]),
+            "single_batch_path": one_by_batch_path}, n_single))  # fmt: skip
         res["single_reference"] = _timed(
             lambda: reference_localize(model, Q[next(singles) % n_queries][None, :]), n_single // 4
         )
@@ -275,6 +301,9 @@ def _print_point(p: dict[str, Any]) -> None:
                   f"{_mb(s['rss_after_load_bytes'])}, {_mb(s['peak_during_load_bytes'])}", "")  # fmt: skip
     table.add_row("single query (CPU, median)", _us(s["single"]["cpu_s"]),
                   f"{_us(s['single_reference']['cpu_s'])} / {_us(e['single_s_at_N'])}")  # fmt: skip
+    if "single_batch_path" in s:
+        table.add_row("single query through the batch path (CPU, median)",
+                      _us(s["single_batch_path"]["cpu_s"]), "")  # fmt: skip
     table.add_row("single query (wall, median / p99)",
                   f"{_us(s['single']['wall_s'])} / {_us(s['single']['wall_p99_s'])}", "")  # fmt: skip
     table.add_row("batch, per query (CPU)", _us(s["batch"]["cpu_s"]),
