@@ -148,10 +148,10 @@ class LocalizationService:
                 f"d={n_features} was declared but map {loaded.map!r} version {loaded.version} "
                 f"expects d={loaded.n_features}", expected=loaded.n_features, got=n_features,
             )  # fmt: skip
-        return check_descriptors(
-            decode_float32(data, loaded.n_features), n_features=loaded.n_features,
-            what="descriptors",
-        )  # fmt: skip
+        X = decode_float32(data, loaded.n_features)  # (n, d) of d = n_features: shape holds
+        if np.isfinite(X).all():  # finite as float32 ⇔ finite as float64: nothing else to check
+            return X.astype(np.float64)
+        return check_descriptors(X, n_features=loaded.n_features, what="descriptors")  # raises
 
     def localize_images(self, name: str, images: Sequence[tuple[str, bytes]]) -> LocalizeResult:
         """Localize encoded images with the extractor stored with the active version."""
@@ -207,12 +207,19 @@ class LocalizationService:
         out: list[LocalizeResult] = []
         done = time.perf_counter()
         offset = 0
+        series: dict[str, tuple[Any, Any]] = {}  # a label lookup costs more than an observation
         for size, start, kind in zip(sizes, starts, kinds, strict=True):
             rows = slice(offset, offset + size)
             offset += size
             seconds = done - start
-            self.metrics.localize_seconds.labels(map=loaded.map, input=kind).observe(seconds)
-            self.metrics.queries.labels(map=loaded.map, input=kind).inc(size)
+            metric = series.get(kind)
+            if metric is None:
+                metric = series[kind] = (
+                    self.metrics.localize_seconds.labels(map=loaded.map, input=kind),
+                    self.metrics.queries.labels(map=loaded.map, input=kind),
+                )  # fmt: skip
+            metric[0].observe(seconds)
+            metric[1].inc(size)
             out.append(LocalizeResult(loaded.map, loaded.version, index[rows], chunk[rows],
                                       conf[rows], seconds * 1000.0))  # fmt: skip
         return out

@@ -19,11 +19,12 @@ computes everything in float64 (the reference; ``frame_log_scores`` always does)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
+from service.encoding import float64_cache
 from service.encoding.base import Localization
 from service.encoding.exact_decode import (
     FreeDecode,
@@ -59,6 +60,8 @@ class DigitBlock:
     linear: Any  # the stored QuantizedLinear (float64 reference products)
     beta: float  # inverse temperature applied to the scores
     error: float  # κ(d')·max‖w_c‖·β: score error per unit of ‖z‖
+    kept64: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, compare=False,
+                                                         repr=False)  # fmt: skip
 
     @classmethod
     def of(cls, classifier: Any) -> DigitBlock:
@@ -92,7 +95,11 @@ class DigitBlock:
         return out
 
     def dense64(self) -> tuple[np.ndarray, np.ndarray]:
-        """Float64 weights exactly as the stored model dequantises them (not cached)."""
+        """Float64 weights exactly as the stored model dequantises them (kept within the
+        budget of :mod:`service.encoding.float64_cache`)."""
+        return float64_cache.kept(self.kept64, self._make_dense64)
+
+    def _make_dense64(self) -> tuple[np.ndarray, np.ndarray]:
         W = self.linear.weight.astype(np.float64)
         if self.linear.scale is not None:
             W = W * self.linear.scale.astype(np.float64)[:, None]
@@ -238,7 +245,7 @@ class ServingPlan:
     def decode(self, Q: np.ndarray, precision: Precision = "float32") -> Decoded:
         """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path)."""
         if precision == "float32" and Q.shape[0] == 1 and self._single is not None:
-            one = self._single.decode(Q)
+            one = self._single.decode(self, Q)
             if one is not None:
                 return Decoded(*one)
         if precision == "float64":

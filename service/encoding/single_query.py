@@ -36,7 +36,6 @@ class SingleQueryPath:
     """Precomputed 1-row layout of a plan (``None`` from :meth:`of` where it does not apply)."""
 
     def __init__(self, plan: ServingPlan) -> None:
-        self.plan = plan
         n_chunks, k, width = len(plan.phases), plan.k, plan.width
         self.bias = np.full((n_chunks, k, width), -np.inf)  # −inf past each digit's period
         beta = np.ones((n_chunks, k, 1))
@@ -59,9 +58,9 @@ class SingleQueryPath:
             return None
         return cls(plan)
 
-    def decode(self, Q: np.ndarray) -> Answer | None:
-        """Exact decode of one validated float64 query ``(1, d)``; ``None``: use the batch path."""
-        p = self.plan
+    def decode(self, p: ServingPlan, Q: np.ndarray) -> Answer | None:
+        """Exact decode of one validated float64 query ``(1, d)`` by the plan ``p`` this was
+        made of (not kept here: no reference cycle); ``None``: use the batch path."""
         z = np.empty(Q.shape[1], dtype=np.float32)
         with np.errstate(over="ignore", invalid="ignore"):
             if p.mean is None:
@@ -72,7 +71,7 @@ class SingleQueryPath:
         if not zz < _ZZ_LIMIT:  # large, infinite or NaN z-scores: the batch path's checks
             return None
         zerr = 1.001 * math.sqrt(zz)  # ‖z‖ (float32 sum: ≤ d·u off)
-        top, top_lp, certain = self._chunks(z, zerr)
+        top, top_lp, certain = self._chunks(p, z, zerr)
         m, k = len(top), p.k
         buf = (np.zeros if self.padded else np.empty)((m, k, p.width), dtype=np.float32)
         for r, c in enumerate(top):
@@ -106,10 +105,10 @@ class SingleQueryPath:
         index = np.array([local[win] + int(p.bounds[chunk])], dtype=np.int64)
         return index, np.array([chunk], dtype=np.int64), np.array([score]), np.zeros(1, bool)
 
-    def _chunks(self, z: np.ndarray, zerr: float) -> tuple[list[int], np.ndarray, bool]:
+    def _chunks(self, p: ServingPlan, z: np.ndarray,
+                zerr: float) -> tuple[list[int], np.ndarray, bool]:  # fmt: skip
         """Consulted chunks (best first), their log-probabilities, and whether the set of
         top chunks is certain under the float32 error."""
-        p = self.plan
         if p.chunk is None:
             return [0], np.zeros(1), True
         ch = p.chunk
