@@ -34,6 +34,7 @@ from rich.console import Console
 from rich.table import Table
 
 from service.api.process import ServerProcess, free_port
+from service.bench.batching_grid import best_wait, measure_wait_grid
 from service.bench.serve_bench import _batch, _pct, _single, bench_data
 from service.encoding import ModelParams, build_model
 from service.encoding.synthetic import smooth_route
@@ -139,10 +140,10 @@ async def _unary_concurrent(target: str, Q: np.ndarray, n: int, concurrency: int
 
 
 def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams: int,
-                window: int) -> dict[str, Any]:  # fmt: skip
+                window: int, seq_filter: bool = False) -> dict[str, Any]:  # fmt: skip
     per = frames // n_streams
     rows = [[(s * per + i) % Q.shape[0] for i in range(per)] for s in range(n_streams)]
-    batches = [_requests(Q, r, "bench", f"vehicle-{s}") for s, r in enumerate(rows)]
+    batches = [_requests(Q, r, "bench", f"vehicle-{s}", seq_filter) for s, r in enumerate(rows)]
     seconds, got, latency = asyncio.run(_streams(target, batches, window))
     index = np.array([a.index for g in got for a in g])
     truth = np.array([r % period for rr in rows for r in rr])
@@ -205,6 +206,9 @@ def _round(target: str, c: httpx.Client, qry: np.ndarray, period: int, frames: i
         "grpc_unary_concurrent": asyncio.run(_unary_concurrent(target, qry, 640, 32)),
         "grpc_stream_1": _throughput(target, qry, period, frames, 1, window),
         f"grpc_streams_{n_streams}": _throughput(target, qry, period, frames, n_streams, window),
+        # the same vehicles with the sequence filter on every frame (off by default in a stream)
+        f"grpc_streams_{n_streams}_filtered": _throughput(target, qry, period, frames, n_streams,
+                                                          window, seq_filter=True),
     }
     rest = _batch(c, qry[:frames], rest_batch)
     rest.pop("index")
@@ -250,7 +254,7 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
 
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
                    noisy_d: int, params: dict[str, str], out: Path, window: int = 16,
-                   compare: bool = True) -> dict[str, Any]:  # fmt: skip
+                   compare: bool = True, wait_grid: list[float] | None = None) -> dict[str, Any]:  # fmt: skip
     ref, qry, period, label = bench_data(n_frames)
     noisy = smooth_route(n_frames, noisy_d, query_noise=noise, seed=1)  # SYNTHETIC
     token = secrets.token_hex(16)
@@ -261,12 +265,17 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
             _fit_publish(data_dir, "noisy", noisy.reference, params)
         runs = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
                             rest_batch, compare)  # fmt: skip
+        grid = None
+        if wait_grid:
+            with console.status(f"micro-batch waits {wait_grid} ms…"):
+                grid = measure_wait_grid(data_dir, token, qry, period, frames, n_streams, window,
+                                         wait_grid)  # fmt: skip
     key = f"grpc_streams_{n_streams}"
     same = None
     if compare:
         same = runs[0][key]["index"] == runs[1][key]["index"]
     for r in runs:
-        for k in ("grpc_stream_1", key):
+        for k in ("grpc_stream_1", key, f"{key}_filtered"):
             r[k].pop("index")
     report: dict[str, Any] = {
         "benchmark": "grpc",
@@ -279,6 +288,8 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         **runs[0],
         "unbatched": runs[1] if compare else None,
         "batched_answers_equal_unbatched": same,
+        "batch_wait_grid": grid,
+        "batch_wait_best_ms": None if grid is None else best_wait(grid),
         "transport": "loopback, plaintext HTTP/2 (grpc.aio client) and HTTP/1.1 (httpx); "
                      "client and server on the same cores; stream latency measured by the "
                      f"client with at most {window} frames in flight per stream",
@@ -307,7 +318,9 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
         f"{x['grpc_unary_concurrent']['client_ms']['p50']:.2f}",
         f"{x['grpc_unary_concurrent']['client_ms']['p99']:.2f}")))
     for key, name in (("grpc_stream_1", "gRPC LocalizeStream, 1 stream (client ms)"),
-                      (f"grpc_streams_{n_streams}", f"gRPC LocalizeStream, {n_streams} streams (client ms)")):  # fmt: skip
+                      (f"grpc_streams_{n_streams}", f"gRPC LocalizeStream, {n_streams} streams (client ms)"),
+                      (f"grpc_streams_{n_streams}_filtered",
+                       f"  the same {n_streams} with the sequence filter on")):  # fmt: skip
         t.add_row(name, *cells(lambda x, key=key: (
             f"{x[key]['frames_per_s']:.0f} frames/s", f"{x[key]['client_ms']['p50']:.2f}",
             f"{x[key]['client_ms']['p99']:.2f}")))
@@ -320,6 +333,16 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
     if r.get("batched_answers_equal_unbatched") is not None:
         console.print(f"{n_streams}-stream answers identical batched and unbatched: "
                       f"{r['batched_answers_equal_unbatched']}")  # fmt: skip
+    if r.get("batch_wait_grid"):
+        g = Table(title=f"GRIDPLACE_BATCH_MAX_WAIT_MS, {n_streams} streams (alternating rounds)")
+        for col in ("wait ms", "frames/s", "p50 / p99 ms", "unary p50 ms", "mean batch"):
+            g.add_column(col)
+        for wait, v in r["batch_wait_grid"].items():
+            cm = v["streams"]["client_ms"]
+            g.add_row(wait, f"{v['streams']['frames_per_s']:.0f}", f"{cm['p50']:.1f} / {cm['p99']:.1f}",
+                      f"{v['unary_sequential_client_ms']['p50']:.2f}", f"{v['mean_batch_size']:.1f}")
+        console.print(g)
+        console.print(f"best wait: {r['batch_wait_best_ms']} ms")
     f = r["sequence_filter"]
     console.print(f"[bold]sequence filter[/] on {r['filter_data']['label']} (N={r['filter_data']['N']}, "
                   f"d={r['filter_data']['d']}), {f['frames']} frames along the route:")  # fmt: skip

@@ -74,6 +74,8 @@ def bench_grpc(
     patterns: Annotated[int, typer.Option(help="k")] = 2,
     window: Annotated[int, typer.Option(help="frames in flight per stream")] = 16,
     compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
+    wait_grid: Annotated[str, typer.Option(
+        help="micro-batch waits to compare, ms, comma-separated (e.g. 0,0.5,2; empty: none)")] = "",
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-grpc.json"),
 ) -> None:
     """gRPC frames/s on 1 and N streams beside REST, micro-batched and not, and what sequence
@@ -81,8 +83,9 @@ def bench_grpc(
     from service.bench.grpc_bench import run_grpc_bench
 
     params = {"trainer": trainer, "n_patterns": str(patterns)}
+    waits = [float(w) for w in wait_grid.split(",") if w.strip()]
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
-                   window, compare)  # fmt: skip
+                   window, compare, waits or None)  # fmt: skip
 
 
 @app.command("scale")

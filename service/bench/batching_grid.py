@@ -1,0 +1,74 @@
+"""The micro-batcher's wait (``GRIDPLACE_BATCH_MAX_WAIT_MS``) measured on a small grid.
+
+One ``gridplace serve`` per wait value, all up at once and measured in alternating rounds (so
+that all see the same load): ``n_streams`` concurrent ``LocalizeStream`` vehicles (frames/s,
+client-side per-frame latency), sequential unary ``Localize`` calls (what a lone caller pays
+for the wait: a batch's first request waits for company up to the wait) and the mean batch
+size the server's metrics recorded. Used by ``gridplace bench grpc --wait-grid``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import re
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from service.api.process import ServerProcess, free_port
+
+
+def _mean_batch(url: str) -> float:
+    text = httpx.get(f"{url}/metrics", timeout=10).text
+    found = {k: re.search(rf"^gridplace_localize_batch_size_{k} (\S+)$", text, re.MULTILINE)
+             for k in ("sum", "count")}  # fmt: skip
+    if found["sum"] is None or found["count"] is None:
+        return float("nan")
+    count = float(found["count"].group(1))
+    return float(found["sum"].group(1)) / count if count else float("nan")
+
+
+def measure_wait_grid(data_dir: Path, token: str, qry: np.ndarray, period: int, frames: int,
+                      n_streams: int, window: int, waits_ms: list[float],
+                      rounds: int = 3) -> dict[str, Any]:  # fmt: skip
+    """Per wait (ms, as a string key): merged stream throughput and unary latency."""
+    from service.bench.grpc_bench import _merge, _throughput, _unary
+
+    with contextlib.ExitStack() as stack:
+        servers = []
+        for wait in waits_ms:
+            port = free_port()
+            env = {"GRIDPLACE_ADMIN_TOKEN": token, "GRIDPLACE_GRPC_PORT": str(port),
+                   "GRIDPLACE_LOG_LEVEL": "warning", "GRIDPLACE_TRAIN_WORKERS": "1",
+                   "GRIDPLACE_BATCHING": "true", "GRIDPLACE_BATCH_MAX_WAIT_MS": str(wait)}  # fmt: skip
+            srv = stack.enter_context(ServerProcess(data_dir, env=env))
+            srv.wait_ready(120)
+            servers.append((wait, f"127.0.0.1:{port}", srv.url))
+        got: dict[float, list[dict[str, Any]]] = {w: [] for w in waits_ms}
+        per = max(n_streams, frames // rounds)
+        for _ in range(rounds):
+            for wait, target, _url in servers:
+                streams = _throughput(target, qry, period, per, n_streams, window)
+                got[wait].append({"streams": streams,
+                                  "unary": asyncio.run(_unary(target, qry, 100))})  # fmt: skip
+        out = {}
+        for wait, _target, url in servers:
+            parts = got[wait]
+            streams = _merge([p["streams"] for p in parts])
+            streams.pop("index")
+            out[f"{wait:g}"] = {
+                "streams": streams,
+                "unary_sequential_client_ms": _merge([p["unary"] for p in parts])["client_ms"],
+                "mean_batch_size": _mean_batch(url),
+            }
+    return out
+
+
+def best_wait(grid: dict[str, Any]) -> str:
+    """The wait with the highest stream throughput whose p99 is within 10 % of the lowest."""
+    lowest = min(v["streams"]["client_ms"]["p99"] for v in grid.values())
+    fine = {k: v for k, v in grid.items() if v["streams"]["client_ms"]["p99"] <= 1.1 * lowest}
+    return max(fine, key=lambda k: fine[k]["streams"]["frames_per_s"])
