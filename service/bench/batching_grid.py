@@ -46,16 +46,16 @@ def measure_wait_grid(data_dir: Path, token: str, qry: np.ndarray, period: int, 
                    "GRIDPLACE_BATCHING": "true", "GRIDPLACE_BATCH_MAX_WAIT_MS": str(wait)}  # fmt: skip
             srv = stack.enter_context(ServerProcess(data_dir, env=env))
             srv.wait_ready(120)
-            servers.append((wait, f"127.0.0.1:{port}", srv.url))
+            servers.append((wait, f"127.0.0.1:{port}", srv.url, srv.proc.pid if srv.proc else None))
         got: dict[float, list[dict[str, Any]]] = {w: [] for w in waits_ms}
         per = max(n_streams, frames // rounds)
         for _ in range(rounds):
-            for wait, target, _url in servers:
-                streams = _throughput(target, qry, period, per, n_streams, window)
+            for wait, target, _url, pid in servers:
+                streams = _throughput(target, qry, period, per, n_streams, window, pid=pid)
                 got[wait].append({"streams": streams,
                                   "unary": asyncio.run(_unary(target, qry, 100))})  # fmt: skip
         out = {}
-        for wait, _target, url in servers:
+        for wait, _target, url, _pid in servers:
             parts = got[wait]
             streams = _merge([p["streams"] for p in parts])
             streams.pop("index")

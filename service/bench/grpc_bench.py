@@ -139,16 +139,30 @@ async def _unary_concurrent(target: str, Q: np.ndarray, n: int, concurrency: int
             "client_ms": _pct(ms), "client_raw": ms}  # fmt: skip
 
 
+def cpu_seconds(pid: int | None) -> float:
+    """User + system CPU seconds of a process so far (Linux ``/proc``; NaN elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
 def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams: int,
-                window: int, seq_filter: bool = False) -> dict[str, Any]:  # fmt: skip
+                window: int, seq_filter: bool = False, pid: int | None = None) -> dict[str, Any]:  # fmt: skip
+    """Frames/s of ``n_streams`` vehicles, and the CPU the server process (``pid``) and this
+    client process spent per frame meanwhile (the robust figures on shared cores)."""
     per = frames // n_streams
     rows = [[(s * per + i) % Q.shape[0] for i in range(per)] for s in range(n_streams)]
     batches = [_requests(Q, r, "bench", f"vehicle-{s}", seq_filter) for s, r in enumerate(rows)]
+    server_cpu, client_cpu = cpu_seconds(pid), time.process_time()
     seconds, got, latency = asyncio.run(_streams(target, batches, window))
+    server_cpu, client_cpu = cpu_seconds(pid) - server_cpu, time.process_time() - client_cpu
     index = np.array([a.index for g in got for a in g])
     truth = np.array([r % period for rr in rows for r in rr])
     return {"streams": n_streams, "frames": per * n_streams, "seconds": seconds,
             "window_per_stream": window, "frames_per_s": per * n_streams / seconds,
+            "server_cpu_s": server_cpu, "client_cpu_s": client_cpu,
             "client_ms": _pct([1000 * t for t in latency]),
             "client_raw": [1000 * t for t in latency],
             "server_ms": _pct([a.latency_ms for g in got for a in g]),
@@ -187,6 +201,9 @@ def _merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
         frames, seconds = sum(p["frames"] for p in parts), sum(p["seconds"] for p in parts)
         out.update(frames=frames, seconds=seconds, frames_per_s=frames / seconds,
                    index=[i for p in parts for i in p["index"]])  # fmt: skip
+        for side in ("server", "client"):
+            cpu = sum(p[f"{side}_cpu_s"] for p in parts)
+            out.update({f"{side}_cpu_s": cpu, f"{side}_cpu_us_per_frame": 1e6 * cpu / frames})
     if "req_per_s" in out:
         n, seconds = sum(p["requests"] for p in parts), sum(p["seconds"] for p in parts)
         out.update(requests=n, seconds=seconds, req_per_s=n / seconds)
@@ -200,15 +217,16 @@ def _merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _round(target: str, c: httpx.Client, qry: np.ndarray, period: int, frames: int,
-           n_streams: int, window: int, rest_batch: int) -> dict[str, Any]:  # fmt: skip
+           n_streams: int, window: int, rest_batch: int, pid: int | None) -> dict[str, Any]:  # fmt: skip
     out: dict[str, Any] = {
         "grpc_unary": asyncio.run(_unary(target, qry, 100)),
         "grpc_unary_concurrent": asyncio.run(_unary_concurrent(target, qry, 640, 32)),
-        "grpc_stream_1": _throughput(target, qry, period, frames, 1, window),
-        f"grpc_streams_{n_streams}": _throughput(target, qry, period, frames, n_streams, window),
+        "grpc_stream_1": _throughput(target, qry, period, frames, 1, window, pid=pid),
+        f"grpc_streams_{n_streams}": _throughput(target, qry, period, frames, n_streams, window,
+                                                 pid=pid),
         # the same vehicles with the sequence filter on every frame (off by default in a stream)
         f"grpc_streams_{n_streams}_filtered": _throughput(target, qry, period, frames, n_streams,
-                                                          window, seq_filter=True),
+                                                          window, seq_filter=True, pid=pid),
     }
     rest = _batch(c, qry[:frames], rest_batch)
     rest.pop("index")
@@ -234,14 +252,14 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
             srv = stack.enter_context(ServerProcess(data_dir, env=env))
             srv.wait_ready(120)
             client = stack.enter_context(httpx.Client(base_url=srv.url, timeout=60))
-            servers.append((f"127.0.0.1:{port}", client))
+            servers.append((f"127.0.0.1:{port}", client, srv.proc.pid if srv.proc else None))
         rounds_out: list[list[dict[str, Any]]] = [[] for _ in modes]
         per = max(n_streams, frames // rounds)
         for k in range(rounds):
-            for (target, client), got in zip(servers, rounds_out, strict=True):
+            for (target, client, pid), got in zip(servers, rounds_out, strict=True):
                 with console.status(f"round {k + 1}/{rounds}: measuring {target}…"):
                     got.append(_round(target, client, qry, period, per, n_streams, window,
-                                      rest_batch))  # fmt: skip
+                                      rest_batch, pid))  # fmt: skip
         with console.status("sequence filter through the micro-batched server…"):
             filtering = _filtering(servers[0][0], noisy_q, frames)
     runs = []
@@ -322,8 +340,9 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
                       (f"grpc_streams_{n_streams}_filtered",
                        f"  the same {n_streams} with the sequence filter on")):  # fmt: skip
         t.add_row(name, *cells(lambda x, key=key: (
-            f"{x[key]['frames_per_s']:.0f} frames/s", f"{x[key]['client_ms']['p50']:.2f}",
-            f"{x[key]['client_ms']['p99']:.2f}")))
+            f"{x[key]['frames_per_s']:.0f} frames/s (CPU/frame: server "
+            f"{x[key]['server_cpu_us_per_frame']:.0f} µs, client {x[key]['client_cpu_us_per_frame']:.0f} µs)",
+            f"{x[key]['client_ms']['p50']:.2f}", f"{x[key]['client_ms']['p99']:.2f}")))
     t.add_row(f"REST /v1/localize/batch binary ×{r['rest_batch_binary']['batch_size']}", *cells(
         lambda x: (f"{x['rest_batch_binary']['queries_per_s']:.0f} q/s", "", "")))
     t.add_row("REST /v1/localize single base64", *cells(lambda x: (
@@ -335,11 +354,13 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
                       f"{r['batched_answers_equal_unbatched']}")  # fmt: skip
     if r.get("batch_wait_grid"):
         g = Table(title=f"GRIDPLACE_BATCH_MAX_WAIT_MS, {n_streams} streams (alternating rounds)")
-        for col in ("wait ms", "frames/s", "p50 / p99 ms", "unary p50 ms", "mean batch"):
+        for col in ("wait ms", "frames/s", "p50 / p99 ms", "server CPU µs/frame", "unary p50 ms",
+                    "mean batch"):  # fmt: skip
             g.add_column(col)
         for wait, v in r["batch_wait_grid"].items():
             cm = v["streams"]["client_ms"]
             g.add_row(wait, f"{v['streams']['frames_per_s']:.0f}", f"{cm['p50']:.1f} / {cm['p99']:.1f}",
+                      f"{v['streams']['server_cpu_us_per_frame']:.0f}",
                       f"{v['unary_sequential_client_ms']['p50']:.2f}", f"{v['mean_batch_size']:.1f}")
         console.print(g)
         console.print(f"best wait: {r['batch_wait_best_ms']} ms")
