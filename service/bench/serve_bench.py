@@ -128,6 +128,15 @@ def _batch(c: httpx.Client, Q: np.ndarray, batch: int) -> dict[str, Any]:
 
 
 def _in_process(localize: Any, Q: np.ndarray, n_single: int, batch: int) -> dict[str, Any]:
+    """Single and batch timing in this process with one BLAS thread, as the server runs
+    (``GRIDPLACE_SERVE_BLAS_THREADS=1``; more threads thrash on shared cores)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        return _timed_in_process(localize, Q, n_single, batch)
+
+
+def _timed_in_process(localize: Any, Q: np.ndarray, n_single: int, batch: int) -> dict[str, Any]:
     ms = []
     for i in range(n_single + 20):
         start = time.perf_counter()
