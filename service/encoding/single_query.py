@@ -50,6 +50,27 @@ class SingleQueryPath:
                        for phase in plan.phases]  # fmt: skip
         self.twice_digit_error = 2.0 * plan._digit_error
         self.pair_error = plan._error + plan._chunk_error
+        self.fused_z = plan.mean is not None and self._fused_z_is_the_plans(plan)
+
+    def _fused_z_is_the_plans(self, plan: ServingPlan) -> bool:
+        """Whether the fused z-scores below are bit for bit the plan's own (a front-end
+        beyond mean and scale, e.g. a projection, goes through ``plan.normalise``)."""
+        assert plan.mean is not None and plan.scale is not None
+        rng = np.random.default_rng(0)
+        probe = plan.mean + plan.scale * rng.standard_normal((1, plan.mean.shape[0]))
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                fused = self._z(plan, probe)
+            return bool(np.array_equal(fused, plan.normalise(probe, np.float32)[0]))
+        except Exception:  # noqa: BLE001 - any doubt: the plan's own normalisation
+            return False
+
+    @staticmethod
+    def _z(p: ServingPlan, Q: np.ndarray) -> np.ndarray:
+        """Float32 z-scores of one row (the caller silences float overflow: it is checked)."""
+        z = np.empty(Q.shape[1], dtype=np.float32)
+        np.divide(np.subtract(Q[0], p.mean), p.scale, out=z)
+        return z
 
     @classmethod
     def of(cls, plan: ServingPlan) -> SingleQueryPath | None:
@@ -61,12 +82,11 @@ class SingleQueryPath:
     def decode(self, p: ServingPlan, Q: np.ndarray) -> Answer | None:
         """Exact decode of one validated float64 query ``(1, d)`` by the plan ``p`` this was
         made of (not kept here: no reference cycle); ``None``: use the batch path."""
-        z = np.empty(Q.shape[1], dtype=np.float32)
+        if not self.fused_z:
+            z = np.ascontiguousarray(p.normalise(Q, np.float32)[0])
         with np.errstate(over="ignore", invalid="ignore"):
-            if p.mean is None:
-                z[:] = Q[0]
-            else:
-                np.divide(np.subtract(Q[0], p.mean), p.scale, out=z)
+            if self.fused_z:
+                z = self._z(p, Q)
             zz = float(np.dot(z, z))
         if not zz < _ZZ_LIMIT:  # large, infinite or NaN z-scores: the batch path's checks
             return None

@@ -263,3 +263,23 @@ def test_label_tables_are_left_to_the_batch_path() -> None:
     model._set_fitted(model.n_frames_, model.n_features_in_)
     assert ServingPlan(model)._single is None
     check_exact(model, route.query[:1].astype(np.float64))
+
+
+class _FrontEndPlan(ServingPlan):
+    """A plan whose front-end is more than mean and scale (as a projection would be)."""
+
+    def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+        return (super().normalise(Q, np.float64) * 1.5).astype(dtype)
+
+
+def test_a_front_end_beyond_mean_and_scale_is_the_plans_own_in_the_single_path() -> None:
+    route = smooth_route(437, 24, seed=13)
+    model = ChunkedPlaceEncoder(n_chunks=5, trainer="ridge", top_chunks=2).fit(route.reference)
+    assert ServingPlan(model)._single.fused_z  # type: ignore[union-attr]
+    plan = _FrontEndPlan(model)
+    assert plan._single is not None and not plan._single.fused_z
+    Q = route.query.astype(np.float64)
+    index, chunk, _, _ = _one_by_one(plan, Q)
+    batch = plan.decode(Q)
+    np.testing.assert_array_equal(index, batch.index)
+    np.testing.assert_array_equal(chunk, batch.chunk)
