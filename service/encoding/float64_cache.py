@@ -2,8 +2,8 @@
 
 A query whose float32 answer cannot be certified is decoded again in float64 with the weights
 exactly as the stored model dequantises them. Making those (a cast of the whole ``τ × d'``
-block) costs far more than the one product a re-scored query needs: on real imagery, where a
-tenth of the queries can be near ties, it was most of a micro-batch's time. So a digit's float64
+block) costs far more than the one product a re-scored query needs, and on real imagery a
+tenth of the queries can be near ties. So a digit's float64
 weights are kept once made, as long as all kept blocks together stay within
 :data:`CACHE_BYTES`; past the budget they are made per call as before (answers are the same
 either way: the cast is exact). A block's bytes are returned to the budget when it is freed
