@@ -35,6 +35,7 @@ from rich.table import Table
 
 from service.api.process import ServerProcess, free_port
 from service.bench.batching_grid import best_wait, measure_wait_grid
+from service.bench.grpc_floor import measure_floor
 from service.bench.serve_bench import _batch, _pct, _single, bench_data
 from service.encoding import ModelParams, build_model
 from service.encoding.synthetic import smooth_route
@@ -272,7 +273,8 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
 
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
                    noisy_d: int, params: dict[str, str], out: Path, window: int = 16,
-                   compare: bool = True, wait_grid: list[float] | None = None) -> dict[str, Any]:  # fmt: skip
+                   compare: bool = True, wait_grid: list[float] | None = None,
+                   floor: bool = True) -> dict[str, Any]:  # fmt: skip
     ref, qry, period, label = bench_data(n_frames)
     noisy = smooth_route(n_frames, noisy_d, query_noise=noise, seed=1)  # SYNTHETIC
     token = secrets.token_hex(16)
@@ -283,6 +285,10 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
             _fit_publish(data_dir, "noisy", noisy.reference, params)
         runs = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
                             rest_batch, compare)  # fmt: skip
+        floor_run = None
+        if floor:
+            with console.status("the gRPC floor (a server that does no work)…"):
+                floor_run = measure_floor(qry, period, frames, n_streams, window)
         grid = None
         if wait_grid:
             with console.status(f"micro-batch waits {wait_grid} ms…"):
@@ -306,6 +312,7 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         **runs[0],
         "unbatched": runs[1] if compare else None,
         "batched_answers_equal_unbatched": same,
+        "grpc_floor_streams": floor_run,
         "batch_wait_grid": grid,
         "batch_wait_best_ms": None if grid is None else best_wait(grid),
         "transport": "loopback, plaintext HTTP/2 (grpc.aio client) and HTTP/1.1 (httpx); "
@@ -352,6 +359,12 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
     if r.get("batched_answers_equal_unbatched") is not None:
         console.print(f"{n_streams}-stream answers identical batched and unbatched: "
                       f"{r['batched_answers_equal_unbatched']}")  # fmt: skip
+    if r.get("grpc_floor_streams"):
+        fl = r["grpc_floor_streams"]
+        console.print(f"gRPC floor, {n_streams} streams against a server that does no work: "
+                      f"{fl['frames_per_s']:.0f} frames/s, p50 {fl['client_ms']['p50']:.1f} ms, "
+                      f"p99 {fl['client_ms']['p99']:.1f} ms; CPU/frame server "
+                      f"{fl['server_cpu_us_per_frame']:.0f} µs, client {fl['client_cpu_us_per_frame']:.0f} µs")  # fmt: skip
     if r.get("batch_wait_grid"):
         g = Table(title=f"GRIDPLACE_BATCH_MAX_WAIT_MS, {n_streams} streams (alternating rounds)")
         for col in ("wait ms", "frames/s", "p50 / p99 ms", "server CPU µs/frame", "unary p50 ms",

@@ -74,6 +74,8 @@ def bench_grpc(
     patterns: Annotated[int, typer.Option(help="k")] = 2,
     window: Annotated[int, typer.Option(help="frames in flight per stream")] = 16,
     compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
+    floor: Annotated[bool, typer.Option(
+        help="also measure the streams against a server that does no work (the gRPC floor)")] = True,
     wait_grid: Annotated[str, typer.Option(
         help="micro-batch waits to compare, ms, comma-separated (e.g. 0,0.5,2; empty: none)")] = "",
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-grpc.json"),
@@ -85,7 +87,7 @@ def bench_grpc(
     params = {"trainer": trainer, "n_patterns": str(patterns)}
     waits = [float(w) for w in wait_grid.split(",") if w.strip()]
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
-                   window, compare, waits or None)  # fmt: skip
+                   window, compare, waits or None, floor)  # fmt: skip
 
 
 @app.command("scale")
