@@ -147,6 +147,13 @@ def pool_folds(rows: list[dict[str, Any]]) -> dict[str, Any]:
             **mean, "folds": [r["fold"] for r in rows], "drives": drives}  # fmt: skip
 
 
+def add_ratios(results: list[dict[str, Any]]) -> None:
+    """``bytes_vs_exact_nn`` of every row: its actual bytes over exact NN's in the same block."""
+    nn = next((r for r in results if r["method"] == "exact-nn"), None)
+    for r in results:
+        r["bytes_vs_exact_nn"] = r["actual_bytes"] / nn["actual_bytes"] if nn else None
+
+
 def run_protocol(ds: Dataset, protocol: str, methods: list[QualityMethod], config: SequenceConfig,
                  progress: Progress) -> dict[str, Any]:  # fmt: skip
     folds = folds_for(protocol, ds.reference, ds.query, ds.ground_truth)
@@ -161,9 +168,7 @@ def run_protocol(ds: Dataset, protocol: str, methods: list[QualityMethod], confi
             errors.append({"method": method.name, "family": method.family, "error": str(exc)})
             continue
         results.append(pool_folds(per_fold))
-    nn = next((r for r in results if r["method"] == "exact-nn"), None)
-    for r in results:
-        r["bytes_vs_exact_nn"] = r["actual_bytes"] / nn["actual_bytes"] if nn else None
+    add_ratios(results)
     return {"protocol": protocol, "label": PROTOCOL_LABELS[protocol],
             "folds": [{"name": f.name, "train_rows": int(f.train_rows.shape[0]),
                        "drives": {k: int(v.size) for k, v in f.drives.items()},
@@ -210,3 +215,32 @@ def _json_default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()
     return str(o)
+
+
+def merge_reports(reports: list[dict[str, Any]]) -> dict[str, Any]:
+    """Several runs as one report: per descriptor set (by name) and protocol, the methods of
+    every run in order (a method measured twice keeps its later run). Each run's context is
+    kept under ``runs``."""
+    if not reports:
+        raise InvalidInputError("nothing to merge")
+    merged: dict[str, Any] = {**reports[0], "sets": [], "runs": [r["context"] for r in reports]}
+    by_name: dict[str, dict[str, Any]] = {}
+    for rep in reports:
+        for entry in rep["sets"]:
+            name = entry["dataset"]["name"]
+            if name not in by_name:
+                by_name[name] = {"dataset": entry["dataset"], "protocols": {}}
+                merged["sets"].append(by_name[name])
+            protocols = by_name[name]["protocols"]
+            for key, block in entry["protocols"].items():
+                if key not in protocols:
+                    protocols[key] = {**block, "results": [], "errors": []}
+                into = protocols[key]
+                fresh = {r["method"] for r in block["results"] + block["errors"]}
+                into["results"] = [r for r in into["results"] if r["method"] not in fresh]
+                into["errors"] = [e for e in into["errors"] if e["method"] not in fresh]
+                into["results"] += block["results"]
+                into["errors"] += block["errors"]
+                add_ratios(into["results"])
+    merged["elapsed_seconds"] = sum(r.get("elapsed_seconds", 0.0) for r in reports)
+    return merged

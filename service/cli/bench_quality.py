@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -42,15 +43,26 @@ def bench_quality(
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-quality.json"),
     figure: Annotated[Path | None, typer.Option(
         help="PNG of precision against bytes (none if omitted)")] = None,
+    merge: Annotated[list[Path] | None, typer.Option(
+        "--merge", help="run nothing: merge these reports (repeatable; a method in several "
+                        "keeps its last run) into --out and --figure")] = None,
 ) -> None:
     """Precision (±0/2/5/10, single frame and sequence) and storage of exact NN, PQ, Yu et al.
     and gridplace configurations on the same descriptors: reference -> query traversal and
     multi-traversal; half A of the drive is validation, half B test."""
-    from service.bench.quality_bench import load_sets, run_quality_bench
+    from service.bench.quality_bench import load_sets, merge_reports, run_quality_bench
     from service.bench.quality_report import plot_frontier, print_report
     from service.cli.model_commands import sequence_config
     from service.errors import InvalidParameterError
 
+    if merge:
+        report = merge_reports([json.loads(p.read_text()) for p in merge])
+        out.write_text(json.dumps(report, indent=2))
+        print_report(report, console)
+        console.print(f"wrote {out}")
+        if figure is not None:
+            console.print(f"wrote {plot_frontier(report, figure)}")
+        return
     refs, qrys = reference or [], query or []
     if len(refs) != len(qrys):
         raise InvalidParameterError("give one --query per --reference")

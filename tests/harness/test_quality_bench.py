@@ -139,3 +139,22 @@ def test_cli_rejects_unpaired_and_unknown_options(folder: Path, tmp_path: Path) 
     res = runner.invoke(app, ["bench", "quality", str(folder), "--protocols", "sideways",
                               "--out", str(tmp_path / "x.json")])  # fmt: skip
     assert res.exit_code == 2 and "sideways" in res.output
+
+
+def test_merged_runs_put_every_method_side_by_side(folder: Path, tmp_path: Path) -> None:
+    runner = CliRunner()
+    outs = []
+    for i, methods in enumerate(("exact_nn,ridge", "ridge,yu")):
+        outs.append(tmp_path / f"run{i}.json")
+        res = runner.invoke(app, ["bench", "quality", str(folder), "--protocols", "cross",
+                                  "--methods", methods, "--out", str(outs[-1])])  # fmt: skip
+        assert res.exit_code == 0, res.output
+    merged = tmp_path / "merged.json"
+    res = runner.invoke(app, ["bench", "quality", "--merge", str(outs[0]), "--merge", str(outs[1]),
+                              "--out", str(merged)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    data = json.loads(merged.read_text())
+    (entry,) = data["sets"]
+    rows = entry["protocols"]["cross"]["results"]
+    assert [r["method"] for r in rows] == ["exact-nn", "yu", "ridge"] and len(data["runs"]) == 2
+    assert rows[1]["bytes_vs_exact_nn"] == rows[1]["actual_bytes"] / rows[0]["actual_bytes"]
