@@ -117,3 +117,36 @@ def plot_frontier(report: dict[str, Any], path: Path) -> Path:
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return path
+
+
+def _pct(p: float) -> str:
+    return f"{100 * p:.1f}"
+
+
+def markdown_tables(report: dict[str, Any]) -> str:
+    """Markdown tables of a report: per descriptor set × protocol, one row per method with
+    its bytes and precision at every tolerance, single frame and sequence, per drive."""
+    tols = [str(t) for t in report["tolerances"]]
+    lines: list[str] = []
+    for entry in report["sets"]:
+        ds = entry["dataset"]
+        for block in entry["protocols"].values():
+            drives = [d for d in DRIVE_ORDER if any(d in r["drives"] for r in block["results"])]
+            lines += [f"**{ds['name']}** (N = {ds['N']}, d = {ds['d']}), {block['label']}. "
+                      f"Precision % at ±{'/±'.join(tols)} frames.", ""]  # fmt: skip
+            head = ["method", "actual bytes (paper)", "vs exact NN"]
+            head += [f"single {d}" for d in drives] + [f"sequence {d}" for d in drives]
+            lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+            for r in block["results"]:
+                ratio = r.get("bytes_vs_exact_nn")
+                size = f"{_bytes(r['actual_bytes'])} ({_bytes(r['paper_bytes'])})"
+                cells = [f"`{r['method']}`", size,
+                         f"{100 * ratio:.1f} %" if ratio is not None else "–"]  # fmt: skip
+                for kind in ("single", "sequence"):
+                    cells += ["/".join(_pct(r["drives"][d][kind][t]) for t in tols)
+                              if d in r["drives"] else "–" for d in drives]  # fmt: skip
+                lines.append("| " + " | ".join(cells) + " |")
+            for e in block["errors"]:
+                lines.append(f"| `{e['method']}` | failed: {e['error']} |" + " |" * (len(head) - 2))
+            lines.append("")
+    return "\n".join(lines)

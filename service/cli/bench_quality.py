@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -43,6 +43,8 @@ def bench_quality(
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-quality.json"),
     figure: Annotated[Path | None, typer.Option(
         help="PNG of precision against bytes (none if omitted)")] = None,
+    markdown: Annotated[Path | None, typer.Option(
+        help="also write the tables as Markdown here")] = None,
     merge: Annotated[list[Path] | None, typer.Option(
         "--merge", help="run nothing: merge these reports (repeatable; a method in several "
                         "keeps its last run) into --out and --figure")] = None,
@@ -50,19 +52,32 @@ def bench_quality(
     """Precision (±0/2/5/10, single frame and sequence) and storage of exact NN, PQ, Yu et al.
     and gridplace configurations on the same descriptors: reference -> query traversal and
     multi-traversal; half A of the drive is validation, half B test."""
-    from service.bench.quality_bench import load_sets, merge_reports, run_quality_bench
-    from service.bench.quality_report import plot_frontier, print_report
-    from service.cli.model_commands import sequence_config
-    from service.errors import InvalidParameterError
+    from service.bench.quality_bench import merge_reports
+    from service.bench.quality_report import markdown_tables, plot_frontier, print_report
 
     if merge:
         report = merge_reports([json.loads(p.read_text()) for p in merge])
         out.write_text(json.dumps(report, indent=2))
         print_report(report, console)
         console.print(f"wrote {out}")
-        if figure is not None:
-            console.print(f"wrote {plot_frontier(report, figure)}")
-        return
+    else:
+        report = _run(dataset, reference, query, ground_truth, protocols, methods, yu_trainer,
+                      patch, filter_params, out)  # fmt: skip
+    if figure is not None:
+        console.print(f"wrote {plot_frontier(report, figure)}")
+    if markdown is not None:
+        markdown.write_text(markdown_tables(report))
+        console.print(f"wrote {markdown}")
+
+
+def _run(dataset: Path | None, reference: list[Path] | None, query: list[Path] | None,
+         ground_truth: Path | None, protocols: str, methods: str, yu_trainer: str, patch: int,
+         filter_params: list[str] | None, out: Path) -> dict[str, Any]:  # fmt: skip
+    from service.bench.quality_bench import load_sets, run_quality_bench
+    from service.bench.quality_report import print_report
+    from service.cli.model_commands import sequence_config
+    from service.errors import InvalidParameterError
+
     refs, qrys = reference or [], query or []
     if len(refs) != len(qrys):
         raise InvalidParameterError("give one --query per --reference")
@@ -75,5 +90,4 @@ def bench_quality(
                                    argv=["gridplace", *sys.argv[1:]])  # fmt: skip
     print_report(report, console)
     console.print(f"wrote {out} ({report['elapsed_seconds'] / 60:.1f} min)")
-    if figure is not None:
-        console.print(f"wrote {plot_frontier(report, figure)}")
+    return report

@@ -150,9 +150,12 @@ def test_merged_runs_put_every_method_side_by_side(folder: Path, tmp_path: Path)
                                   "--methods", methods, "--out", str(outs[-1])])  # fmt: skip
         assert res.exit_code == 0, res.output
     merged = tmp_path / "merged.json"
+    md = tmp_path / "tables.md"
     res = runner.invoke(app, ["bench", "quality", "--merge", str(outs[0]), "--merge", str(outs[1]),
-                              "--out", str(merged)])  # fmt: skip
+                              "--out", str(merged), "--markdown", str(md)])  # fmt: skip
     assert res.exit_code == 0, res.output
+    table = md.read_text()
+    assert "| `exact-nn` |" in table and "| `yu` |" in table and "sequence B" in table
     data = json.loads(merged.read_text())
     (entry,) = data["sets"]
     rows = entry["protocols"]["cross"]["results"]
