@@ -200,13 +200,20 @@ def run_quality_bench(
     for ds in sets:
         chosen = catalogue(ds.n_features, ds.n_frames, methods, yu_trainer)
         entry = {"dataset": ds.describe(), "protocols": {}}
+        report["sets"].append(entry)
         for protocol in protocols:
             entry["protocols"][protocol] = run_protocol(ds, protocol, chosen, config, progress)
-        report["sets"].append(entry)
-    report["elapsed_seconds"] = time.perf_counter() - start
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2, default=_json_default))
+            _write(report, out, time.perf_counter() - start)  # a long run keeps what it measured
+    _write(report, out, time.perf_counter() - start)
     return report
+
+
+def _write(report: dict[str, Any], out: Path, elapsed: float) -> None:
+    report["elapsed_seconds"] = elapsed
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2, default=_json_default))
+    tmp.replace(out)
 
 
 def _json_default(o: Any) -> Any:
