@@ -80,6 +80,7 @@ def plot_frontier(report: dict[str, Any], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     panels = [(e, b, kind) for e in report["sets"] for b in e["protocols"].values()
               for kind in ("single", "sequence")]  # fmt: skip
@@ -89,19 +90,20 @@ def plot_frontier(report: dict[str, Any], path: Path) -> Path:
     tol = str(report["headline_tolerance"])
     for ax, (entry, block, kind) in zip(axes.ravel(), panels, strict=False):
         drive = headline_drive(block)
-        seen: set[str] = set()
-        for r in block["results"]:
-            if drive not in r["drives"]:
-                continue
-            fam = r["family"]
-            y = 100 * r["drives"][drive][kind][tol]
-            ax.scatter(r["actual_bytes"], y, color=COLORS.get(fam, "k"), s=28,
-                       label=FAMILY_LABELS.get(fam, fam) if fam not in seen else None)  # fmt: skip
-            seen.add(fam)
-            ax.annotate(r["method"], (r["actual_bytes"], y), fontsize=6, xytext=(3, 2),
-                        textcoords="offset points")  # fmt: skip
+        rows = [r for r in block["results"] if drive in r["drives"]]
+        for fam in dict.fromkeys(r["family"] for r in rows):
+            pts = sorted((r["actual_bytes"], 100 * r["drives"][drive][kind][tol], r["method"])
+                         for r in rows if r["family"] == fam)  # fmt: skip
+            xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+            color = COLORS.get(fam, "k")
+            ax.plot(xs, ys, "o-" if len(pts) > 1 else "o", color=color, lw=0.8, ms=5,
+                    label=FAMILY_LABELS.get(fam, fam))  # fmt: skip
+            for x, y, name in pts:
+                ax.annotate(name, (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
         ds = entry["dataset"]
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_ylim(bottom=0)
         ax.set_xlabel("actual bytes stored")
         ax.set_ylabel(f"precision ±{tol} (%), drive {drive}")
         ax.set_title(f"{ds['name']} · {block['protocol']} · {kind}", fontsize=9)
