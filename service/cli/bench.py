@@ -167,5 +167,7 @@ def bench_sequence(
 
 
 from service.cli.bench_paper import bench_paper
+from service.cli.bench_quality import bench_quality
 
 app.command("paper")(bench_paper)
+app.command("quality")(bench_quality)

@@ -14,7 +14,6 @@ import os
 import secrets
 import socket
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -23,7 +22,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from service.bench.data import NORDLAND_SHAPE, nordland, shared_data_dir
+from service.cli.demo_data import EXTRACTORS, DemoData, demo_data
 from service.cli.demo_examples import print_examples
 from service.cli.demo_reading import TOLERANCE, reading, server_check
 from service.cli.errors import cli_errors
@@ -39,39 +38,11 @@ from service.encoding import (
 )
 from service.encoding.base import PlaceRecognizer
 from service.encoding.evaluation import evaluate
-from service.encoding.synthetic import smooth_route
+from service.encoding.sequence import SequenceConfig
 from service.errors import InvalidParameterError, UnavailableError
 
 console = Console()
 DEMO_MAP = "demo"
-NORDLAND_PATCH = 16
-
-
-@dataclass(frozen=True)
-class DemoData:
-    reference: np.ndarray
-    query: np.ndarray
-    label: str
-    extractor: dict[str, Any] | None  # how images become these descriptors (None: synthetic)
-    query_image: Path | None  # the PNG of query row ``probe`` (Nordland only)
-    probe: int
-
-
-def _data(frames: int | None, synthetic: bool) -> DemoData:
-    route = None if synthetic else nordland(limit=frames, patch=NORDLAND_PATCH)
-    if route is None:
-        n = frames or 3000
-        synth = smooth_route(n, 512, seed=0)
-        why = "--synthetic" if synthetic else "no Nordland data in ../shared/data"
-        label = f"SYNTHETIC smooth random route, {n} frames, d=512 ({why})"
-        return DemoData(synth.reference, synth.query, label, None, None, n // 3)
-    probe = route.reference.shape[0] // 3
-    root = shared_data_dir()
-    png = root / "nordland-64x32" / "query" / f"images-{(probe + 1) * 10:05d}.png" if root else None
-    height, width = NORDLAND_SHAPE
-    ext = {"kind": "patchnorm", "width": width, "height": height, "patch": NORDLAND_PATCH}
-    return DemoData(route.reference, route.query, route.label, ext,
-                    png if png is not None and png.is_file() else None, probe)  # fmt: skip
 
 
 def _fit(params: ModelParams, X: np.ndarray) -> tuple[PlaceRecognizer, float]:
@@ -80,17 +51,25 @@ def _fit(params: ModelParams, X: np.ndarray) -> tuple[PlaceRecognizer, float]:
 
 
 def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any]]:
+    """Both models on the training frames, on the other season frame by frame, and on the
+    other season as one drive through the sequence filter (its default parameters)."""
     nn = ExactNN().fit(data.reference)
     table = Table(title=f"gridplace demo ({data.label})")
     for col in ("model", "condition", "P@0", "P@1", "P@5", "storage bytes", "µs/query"):
         table.add_column(col)
-    results = {}
+    results: dict[str, dict[str, Any]] = {}
     for name, m in (("gridplace", model), ("exact NN", nn)):
-        for cond, Q in (("identical", data.reference), ("cross-season", data.query)):
-            r = evaluate(m, Q, tolerance=TOLERANCE)
+        same = evaluate(m, data.reference, tolerance=TOLERANCE)
+        cross = evaluate(m, data.query, tolerance=TOLERANCE, sequence=SequenceConfig())
+        per_frame = cross["sequence"]["seconds_per_frame"]
+        drive = {**cross, "precision_at": cross["sequence_precision_at"],
+                 "query_seconds_per_descriptor": per_frame}  # fmt: skip
+        conditions = (("identical", same), ("cross-season", cross), ("cross-season drive", drive))
+        for cond, r in conditions:
             results[f"{name}/{cond}"] = r
             pa = r["precision_at"]
-            table.add_row(name, cond, f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
+            table.add_row(name, "as a drive" if cond.endswith("drive") else cond,
+                          f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
                           str(r["footprint_bytes"]),
                           f"{r['query_seconds_per_descriptor'] * 1e6:.0f}")  # fmt: skip
     console.print(table)
@@ -180,8 +159,15 @@ def demo(
     trainer: Annotated[str | None, typer.Option(
         help=f"logreg (the paper's) | svm | ridge | torch (default: {default_trainer()})",
         show_default=False)] = None,
-    patterns: Annotated[int, typer.Option("--patterns", "-k")] = 2,
-    rho: Annotated[float, typer.Option()] = 0.5,
+    patterns: Annotated[int | None, typer.Option(
+        "--patterns", "-k", help="number of encoders k (default: the default configuration's)",
+        show_default=False)] = None,
+    rho: Annotated[float | None, typer.Option(
+        help="fraction of columns per encoder (default: the default configuration's)",
+        show_default=False)] = None,
+    extractor: Annotated[str, typer.Option(
+        help="descriptors of the Nordland frames: default (the service's default extractor, "
+             "the CNN) | cnn | patchnorm")] = "default",
     frames: Annotated[
         int | None, typer.Option(help="use only the first N frames of the route")
     ] = None,
@@ -201,10 +187,12 @@ def demo(
     serve the model as map 'demo' and print curl / grpcurl / gridplace client examples."""
     if frames is not None and frames < 2:
         raise InvalidParameterError(f"--frames must be at least 2, got {frames}")
-    chosen = {"trainer": trainer} if trainer is not None else {}
-    params = ModelParams.parse(n_patterns=patterns, rho=rho, **chosen)
+    if extractor not in EXTRACTORS:
+        raise InvalidParameterError(f"--extractor must be one of {', '.join(EXTRACTORS)}")
+    given = {"trainer": trainer, "n_patterns": patterns, "rho": rho}
+    params = ModelParams.parse(**{k: v for k, v in given.items() if v is not None})
     path = check_new_artifact_dir(out / f"phase-{params.trainer}-{time.strftime('%Y%m%d-%H%M%S')}")
-    data = _data(frames, synthetic)
+    data = demo_data(frames, synthetic, extractor, console)
     console.print(
         f"[bold]dataset[/]: {data.label}; N={data.reference.shape[0]}, d={data.reference.shape[1]}"
     )

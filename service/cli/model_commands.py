@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -12,6 +12,15 @@ from rich.console import Console
 
 from service.cli.errors import cli_errors
 from service.cli.fit_progress import fit_title, fit_with_progress
+from service.cli.train_tuning import (
+    BudgetOpt,
+    TargetOpt,
+    ValidationOpt,
+    ValidationToleranceOpt,
+    ValidationTruthOpt,
+    tune,
+    wants_tuning,
+)
 from service.encoding import (
     ModelParams,
     build_model,
@@ -54,9 +63,15 @@ def train(
     chunk_rho: Annotated[float | None, typer.Option(help="rho of the chunk classifier")] = None,
     top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
     n_jobs: Annotated[int, typer.Option(help="chunk processes, or one-vs-rest threads without chunks (-1 = all)")] = 1,
+    budget_bytes: BudgetOpt = None,
+    target_precision: TargetOpt = None,
+    validation: ValidationOpt = None,
+    validation_truth: ValidationTruthOpt = None,
+    validation_tolerance: ValidationToleranceOpt = 5,
 ) -> None:
     """Train a model on a route (one or several traversals of it) and save it as a new
-    artifact."""
+    artifact. With --budget-bytes and/or --target-precision the configuration is chosen on a
+    validation split first (it replaces the encoder options)."""
     chosen = {"trainer": trainer} if trainer is not None else {}
     params = ModelParams.parse(
         n_patterns=patterns, periods=parse_periods(periods, "--periods"), rho=rho, gamma=gamma,
@@ -73,12 +88,19 @@ def train(
     index = [load_npy(path) for path in places] if places else None
     if len(arrays) == 1:  # one file: messages name it, as before
         arrays = [check_descriptors(arrays[0], min_rows=1 if index else 2, what=str(references[0]))]
+    tuning = None
+    if wants_tuning(budget_bytes, target_precision):
+        params, tuning = tune(params, arrays, index, validation, validation_truth, budget_bytes,
+                              target_precision, validation_tolerance, console)  # fmt: skip
     tr = as_traversals(arrays, index, names=[p.name for p in references])
     model = build_model(params)
     title = fit_title(model, tr.n_places, tr.n_traversals)
     seconds = fit_with_progress(model, tr, console, title)
     source = str(references[0]) if len(references) == 1 else [str(p) for p in references]
-    manifest = save_model(model, out, extra={"train_seconds": seconds, "source": source})
+    extra: dict[str, Any] = {"train_seconds": seconds, "source": source}
+    if tuning is not None:
+        extra["autotune"] = tuning.to_dict()
+    manifest = save_model(model, out, extra=extra)
     fp = manifest["footprint"]
     console.print(
         f"saved {out}: {model.kind} trainer={params.trainer} "

@@ -31,8 +31,11 @@ def test_no_serve_prints_the_table_and_exits(tmp_path: Path) -> None:
     assert "SYNTHETIC" in out.stdout and "cross-season" in out.stdout and "exact NN" in out.stdout
     # the numbers come with a reading and a pointer to the measured results
     assert "a random guess gets" in out.stdout and "docs/RESULTS.md" in out.stdout
+    # single frames and the drive through the sequence filter, beside exact NN, with storage
+    assert "as a drive" in out.stdout and "as one drive" in out.stdout and "of its storage" in out.stdout
     (results,) = tmp_path.glob("*.results.json")
-    assert set(json.loads(results.read_text())) >= {"gridplace/identical", "exact NN/cross-season"}
+    assert set(json.loads(results.read_text())) >= {"gridplace/identical", "exact NN/cross-season",
+                                                    "gridplace/cross-season drive"}  # fmt: skip
     assert "curl" not in out.stdout and not (tmp_path / "registry.sqlite3").exists()
 
 

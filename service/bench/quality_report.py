@@ -1,0 +1,154 @@
+"""Tables and the precision-vs-bytes frontier figure of ``gridplace bench quality``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from service.harness.quality_methods import FAMILY_LABELS
+
+DRIVE_ORDER = ("A", "B", "all")
+COLORS = {"exact_nn": "tab:green", "exact_nn_projected": "tab:olive", "pq": "tab:red",
+          "yu": "tab:orange", "gridplace": "tab:blue"}  # fmt: skip
+
+
+def _cell(p: dict[str, float]) -> str:
+    return "/".join(f"{100 * p[t]:.1f}" for t in p)
+
+
+def _bytes(n: float) -> str:
+    for unit, size in (("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{n:.0f} B"
+
+
+def protocol_table(dataset: dict[str, Any], block: dict[str, Any], tolerances: list[int],
+                   kind: str) -> Table:  # fmt: skip
+    """One row per method: precision per drive (``kind``: single or sequence); the single
+    frame table also gives the storage."""
+    tol = "/".join(f"±{t}" for t in tolerances)
+    title = f"{dataset['name']} (N={dataset['N']}, d={dataset['d']}) {block['label']}: {kind}"
+    t = Table(title=f"{title}, precision % at {tol}", title_justify="left")
+    drives = [d for d in DRIVE_ORDER if any(d in r["drives"] for r in block["results"])]
+    t.add_column("method")
+    if kind == "single":
+        t.add_column("actual (paper) bytes")
+        t.add_column("vs NN", justify="right")
+    for d in drives:
+        t.add_column(d, justify="right")
+    for r in block["results"]:
+        cells = [r["method"]]
+        if kind == "single":
+            ratio = r.get("bytes_vs_exact_nn")
+            cells += [f"{_bytes(r['actual_bytes'])} ({_bytes(r['paper_bytes'])})",
+                      f"{100 * ratio:.1f}%" if ratio is not None else "–"]  # fmt: skip
+        cells += [_cell(r["drives"][d][kind]) if d in r["drives"] else "–" for d in drives]
+        t.add_row(*cells)
+    if kind == "single":
+        for e in block["errors"]:
+            t.add_row(e["method"], f"[red]failed: {e['error']}[/red]", "", *[""] * len(drives))
+    return t
+
+
+def print_report(report: dict[str, Any], console: Console) -> None:
+    for entry in report["sets"]:
+        console.print(f"[bold]{entry['dataset']['label']}[/bold]")
+        for block in entry["protocols"].values():
+            for kind in ("single", "sequence"):
+                console.print(protocol_table(entry["dataset"], block, report["tolerances"], kind))
+    console.print(
+        "A = first half of the query drive (validation), B = second half (test), all = both; "
+        "protocol (b) folds test only on the half they did not train on. "
+        f"Sequence filter: {report['tuned_where']['sequence_filter']}."
+    )
+
+
+def headline_drive(block: dict[str, Any]) -> str:
+    """The drive a figure shows: B (never tuned on) for protocol (a), the pooled unseen
+    halves for (b)."""
+    return "B" if block["protocol"] == "cross" else "all"
+
+
+def plot_frontier(report: dict[str, Any], path: Path) -> Path:
+    """Precision at the headline tolerance against actual bytes, one panel per descriptor
+    set × protocol × (single, sequence); every method a point, gridplace labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    panels = [(e, b, kind) for e in report["sets"] for b in e["protocols"].values()
+              for kind in ("single", "sequence")]  # fmt: skip
+    cols = 2
+    rows = max(1, (len(panels) + cols - 1) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.4 * cols, 4.2 * rows), squeeze=False)
+    tol = str(report["headline_tolerance"])
+    for ax, (entry, block, kind) in zip(axes.ravel(), panels, strict=False):
+        drive = headline_drive(block)
+        rows = [r for r in block["results"] if drive in r["drives"]]
+        for fam in dict.fromkeys(r["family"] for r in rows):
+            pts = sorted((r["actual_bytes"], 100 * r["drives"][drive][kind][tol], r["method"])
+                         for r in rows if r["family"] == fam)  # fmt: skip
+            xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+            color = COLORS.get(fam, "k")
+            ax.plot(xs, ys, "o-" if len(pts) > 1 else "o", color=color, lw=0.8, ms=5,
+                    label=FAMILY_LABELS.get(fam, fam))  # fmt: skip
+            for x, y, name in pts:
+                ax.annotate(name, (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        ds = entry["dataset"]
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_ylim(bottom=0)
+        ax.set_xlabel("actual bytes stored")
+        ax.set_ylabel(f"precision ±{tol} (%), drive {drive}")
+        ax.set_title(f"{ds['name']} · {block['protocol']} · {kind}", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    ctx = report["context"]
+    foot = f"{ctx['date']} · {ctx['machine']['cores']} cores · gridplace {ctx['git_commit']}"
+    fig.text(0.01, 0.005, f"{foot} · filter: HMM defaults", fontsize=7, color="0.35")
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _pct(p: float) -> str:
+    return f"{100 * p:.1f}"
+
+
+def markdown_tables(report: dict[str, Any]) -> str:
+    """Markdown tables of a report: per descriptor set × protocol, one row per method with
+    its bytes and precision at every tolerance, single frame and sequence, per drive."""
+    tols = [str(t) for t in report["tolerances"]]
+    lines: list[str] = []
+    for entry in report["sets"]:
+        ds = entry["dataset"]
+        for block in entry["protocols"].values():
+            drives = [d for d in DRIVE_ORDER if any(d in r["drives"] for r in block["results"])]
+            lines += [f"**{ds['name']}** (N = {ds['N']}, d = {ds['d']}), {block['label']}. "
+                      f"Precision % at ±{'/±'.join(tols)} frames.", ""]  # fmt: skip
+            head = ["method", "actual bytes (paper)", "vs exact NN"]
+            head += [f"single {d}" for d in drives] + [f"sequence {d}" for d in drives]
+            lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+            for r in block["results"]:
+                ratio = r.get("bytes_vs_exact_nn")
+                size = f"{_bytes(r['actual_bytes'])} ({_bytes(r['paper_bytes'])})"
+                cells = [f"`{r['method']}`", size,
+                         f"{100 * ratio:.1f} %" if ratio is not None else "–"]  # fmt: skip
+                for kind in ("single", "sequence"):
+                    cells += ["/".join(_pct(r["drives"][d][kind][t]) for t in tols)
+                              if d in r["drives"] else "–" for d in drives]  # fmt: skip
+                lines.append("| " + " | ".join(cells) + " |")
+            for e in block["errors"]:
+                lines.append(f"| `{e['method']}` | failed: {e['error']} |" + " |" * (len(head) - 2))
+            lines.append("")
+    return "\n".join(lines)
