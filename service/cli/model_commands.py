@@ -32,6 +32,7 @@ from service.encoding import (
 )
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
+from service.encoding.presets import DEFAULT_PRESET, describe_presets
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.traversals import as_traversals
 from service.encoding.validation import check_descriptors
@@ -49,16 +50,29 @@ def train(
     places: Annotated[list[Path] | None, typer.Option(
         "--places", help="int .npy: the place (0..N-1) of every row of one descriptor file; "
         "give it once per file, in the files' order", show_default=False)] = None,
-    patterns: Annotated[int, typer.Option("--patterns", "-k", help="number of encoders k")] = 2,
+    preset: Annotated[str | None, typer.Option(
+        help=f"encoder preset (default {DEFAULT_PRESET}; options below override it): "
+        f"{describe_presets()}", show_default=False)] = None,
+    patterns: Annotated[int | None, typer.Option("--patterns", "-k", help="number of encoders k",
+                                                 show_default=False)] = None,
     periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
-    rho: Annotated[float, typer.Option(help="fraction of columns per encoder")] = 0.5,
+    rho: Annotated[float | None, typer.Option(help="fraction of columns per encoder",
+                                              show_default=False)] = None,
     gamma: Annotated[float | None, typer.Option(help="L1 bound (default sqrt(d'))")] = None,
     trainer: Annotated[str | None, typer.Option(
-        help=f"logreg (the paper's) | svm | ridge | torch (default: {default_trainer()})",
+        help="logreg (the paper's) | svm | ridge | torch | prototype "
+        f"(default: {default_trainer()})",
         show_default=False)] = None,
-    c: Annotated[float, typer.Option("--C", help="inverse regularisation")] = 4.0,
+    c: Annotated[float | None, typer.Option("--C", help="inverse regularisation",
+                                            show_default=False)] = None,
     decode: Annotated[str, typer.Option(help="joint | argmax")] = "joint",
-    dtype: Annotated[str, typer.Option(help="float64 | float32 | float16 | int8")] = "float32",
+    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8",
+                                              show_default=False)] = None,
+    code: Annotated[str | None, typer.Option(help="mixed_radix | residue",
+                                             show_default=False)] = None,
+    components: Annotated[int | None, typer.Option(
+        "--components", help="PCA projection width (0 = no projection)",
+        show_default=False)] = None,
     chunks: Annotated[int, typer.Option(help="number of chunks (1 = none)")] = 1,
     chunk_rho: Annotated[float | None, typer.Option(help="rho of the chunk classifier")] = None,
     top_chunks: Annotated[int, typer.Option(help="chunks decoded per query")] = 2,
@@ -70,13 +84,16 @@ def train(
     validation_tolerance: ValidationToleranceOpt = 5,
 ) -> None:
     """Train a model on a route (one or several traversals of it) and save it as a new
-    artifact. With --budget-bytes and/or --target-precision the configuration is chosen on a
-    validation split first (it replaces the encoder options)."""
-    chosen = {"trainer": trainer} if trainer is not None else {}
+    artifact (no options: the default preset). With --budget-bytes and/or --target-precision
+    the configuration is chosen on a validation split first (it replaces the encoder options)."""
+    given = {"encoder_preset": preset, "n_patterns": patterns, "rho": rho, "trainer": trainer,
+             "C": c, "dtype": dtype, "code": code}  # fmt: skip
+    chosen: dict[str, object] = {k: v for k, v in given.items() if v is not None}
+    if components is not None:
+        chosen["n_components"] = components or None
     params = ModelParams.parse(
-        n_patterns=patterns, periods=parse_periods(periods, "--periods"), rho=rho, gamma=gamma,
-        C=c, decode=decode, dtype=dtype, n_chunks=chunks, chunk_rho=chunk_rho,
-        top_chunks=top_chunks, n_jobs=n_jobs, **chosen,
+        periods=parse_periods(periods, "--periods"), gamma=gamma, decode=decode, n_chunks=chunks,
+        chunk_rho=chunk_rho, top_chunks=top_chunks, n_jobs=n_jobs, **chosen,
     )  # fmt: skip
     check_new_artifact_dir(out)  # before minutes of training, not after
     if places and len(places) != len(references):

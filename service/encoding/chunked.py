@@ -20,6 +20,7 @@ from service.encoding.base import Localization, PlaceRecognizer
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.footprint import Footprint
+from service.encoding.front_end import FrontEnd
 from service.encoding.normalization import Normalizer
 from service.encoding.patterns import select_columns
 from service.encoding.progress import ProgressFn, Steps
@@ -36,8 +37,9 @@ from service.errors import InvalidParameterError
 
 _ENCODER_PARAMS = (
     "n_patterns", "periods", "rho", "gamma", "trainer", "C", "decode", "beam_width", "dtype",
-    "random_state",
+    "random_state", "code", "code_ratio", "temperature",
 )  # fmt: skip
+_FRONT_PARAMS = ("n_components", "whiten_power")  # the route's, not each chunk's
 
 
 _BLOCK_ROWS = 65536  # rows converted to float64 at a time when a whole route is scanned
@@ -69,24 +71,37 @@ def _chunk_encoder(params: dict[str, Any]) -> PhaseEncoder:
     return PhaseEncoder(**{k: params[k] for k in _ENCODER_PARAMS if k in params}, normalize=False)
 
 
+def as_front_end(front: FrontEnd | Normalizer) -> FrontEnd:
+    """A route's front-end (a bare :class:`Normalizer` is a front-end without projection)."""
+    return FrontEnd(front) if isinstance(front, Normalizer) else front
+
+
+def _identity(rows: np.ndarray) -> np.ndarray:
+    return rows
+
+
+def fit_front_end(X: np.ndarray, params: dict[str, Any]) -> FrontEnd:
+    """The route-wide front-end every chunk shares: normaliser, then the projection."""
+    return FrontEnd.of_params(X, {k: params[k] for k in ("dtype", *_FRONT_PARAMS) if k in params})
+
+
 def fit_chunk_encoder(
     X_chunk: np.ndarray,
-    normalizer: Normalizer,
+    front: FrontEnd | Normalizer,
     params: dict[str, Any],
     progress: ProgressFn | None = None,
     places: np.ndarray | None = None,
 ) -> PhaseEncoder:
     """Train one chunk's encoder on that chunk's raw rows only; ``places`` gives each row's
     place counted from the chunk's first (``None``: row i is place i)."""
-    return _chunk_encoder(params)._fit_normalised(
-        normalizer.transform(X_chunk), progress, places
-    )
+    Xc = as_front_end(front).transform_blocks(X_chunk)
+    return _chunk_encoder(params)._fit_normalised(Xc, progress, places)
 
 
 def fit_chunk_classifier(
     X: np.ndarray,
     bounds: np.ndarray,
-    normalizer: Normalizer,
+    front: FrontEnd | Normalizer,
     params: dict[str, Any],
     progress: ProgressFn | None = None,
     places: np.ndarray | None = None,
@@ -98,26 +113,39 @@ def fit_chunk_classifier(
     The BCSS comes from per-chunk means computed a chunk (or a row block) at a time; only
     the ``d̃`` selected columns of all rows are ever materialised.
     """
+    front = as_front_end(front)
     n_chunks = len(bounds) - 1
+    projected = None  # the projected route, when a projection makes rows narrower
+    if front.projection is not None:
+        projected = front.transform_blocks(X)
+        X, transform = projected, _identity
+    else:
+        transform = front.transform
     if places is None:
         labels = np.repeat(np.arange(n_chunks), np.diff(bounds))
         sizes = np.diff(bounds).astype(np.float64)
         means = np.stack(
-            [normalizer.transform(X[s:e]).mean(axis=0) for s, e in zip(bounds[:-1], bounds[1:])]
+            [transform(X[s:e]).mean(axis=0) for s, e in zip(bounds[:-1], bounds[1:])]
         )
     else:
         labels = chunk_of(places, bounds)
-        sizes, means = group_means(X, labels, n_chunks, normalizer.transform)
+        sizes, means = group_means(X, labels, n_chunks, transform)
     grand = sizes @ means / sizes.sum()
     scores = np.einsum("c,cd->d", sizes, (means - grand) ** 2)
     rho = params.get("chunk_rho") or params.get("rho", 0.5)
     pattern = select_columns(scores, rho, params.get("gamma"))
     cols = pattern.columns
     X_sel = np.empty((X.shape[0], cols.size))  # filled in row blocks: no full-width temporary
-    mean, scale = normalizer.mean[cols].astype(np.float64), normalizer.scale[cols].astype(np.float64)
-    for s in range(0, X.shape[0], _BLOCK_ROWS):
-        block = np.asarray(X[s : s + _BLOCK_ROWS], dtype=np.float64)[:, cols]
-        X_sel[s : s + _BLOCK_ROWS] = (block - mean) / scale
+    norm = front.normalizer
+    if projected is not None:
+        X_sel[:] = projected[:, cols]
+    elif norm is not None:
+        mean, scale = norm.mean[cols].astype(np.float64), norm.scale[cols].astype(np.float64)
+        for s in range(0, X.shape[0], _BLOCK_ROWS):
+            block = np.asarray(X[s : s + _BLOCK_ROWS], dtype=np.float64)[:, cols]
+            X_sel[s : s + _BLOCK_ROWS] = (block - mean) / scale
+    else:
+        X_sel[:] = np.asarray(X, dtype=np.float64)[:, cols]
     return DigitClassifier.fit_selected(
         X_sel,
         labels,
@@ -129,6 +157,7 @@ def fit_chunk_classifier(
         random_state=params.get("random_state", 0),
         n_jobs=params.get("n_jobs", 1),
         progress=Steps(progress, [""], [n_chunks]).step(0),
+        temperature=_chunk_encoder(params)._temperature(),
     )
 
 
@@ -154,6 +183,11 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         dtype: str = "float32",
         n_jobs: int = 1,
         random_state: int | None = 0,
+        code: str = "mixed_radix",
+        code_ratio: float = 1.0,
+        n_components: int | None = None,
+        whiten_power: float = 0.75,
+        temperature: float | None = None,
     ) -> None:
         self.n_chunks = n_chunks
         self.n_patterns = n_patterns
@@ -169,6 +203,11 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.dtype = dtype
         self.n_jobs = n_jobs
         self.random_state = random_state
+        self.code = code
+        self.code_ratio = code_ratio
+        self.n_components = n_components
+        self.whiten_power = whiten_power
+        self.temperature = temperature
 
     def fit(
         self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None
@@ -180,12 +219,12 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         X, idx = tr.rows, tr.places
         if int(self.top_chunks) < 1:
             raise InvalidParameterError(f"top_chunks must be >= 1, got {self.top_chunks}")
-        PhaseEncoder(**{k: getattr(self, k) for k in _ENCODER_PARAMS})._validate_params(
-            X.shape[1]
-        )
+        PhaseEncoder(
+            **{k: getattr(self, k) for k in (*_ENCODER_PARAMS, *_FRONT_PARAMS)}
+        )._validate_params(X.shape[1])
         bounds = plan_chunks(tr.n_places, int(self.n_chunks))
         params = self.get_params()
-        normalizer = Normalizer.fit(X)
+        normalizer = fit_front_end(X, params)
         steps = self._steps(progress, bounds, params)
         classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0), idx)
         steps.done(0)
@@ -220,7 +259,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
     def assemble(
         cls,
         params: dict[str, Any],
-        normalizer: Normalizer,
+        normalizer: FrontEnd | Normalizer,
         bounds: np.ndarray,
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
@@ -231,7 +270,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
 
     def _assemble(
         self,
-        normalizer: Normalizer,
+        normalizer: FrontEnd | Normalizer,
         bounds: np.ndarray,
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
@@ -243,11 +282,11 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         for enc, size in zip(encoders, np.diff(bounds), strict=True):
             if enc.n_frames_ != size:
                 raise InvalidParameterError("a chunk encoder was trained on another chunk size")
-        self.normalizer_ = normalizer
+        self.normalizer_ = as_front_end(normalizer)
         self.chunk_bounds_ = bounds
         self.chunk_classifier_ = classifier
         self.chunk_encoders_ = list(encoders)
-        self._set_fitted(int(bounds[-1]), int(normalizer.mean.shape[0]), n_traversals)
+        self._set_fitted(int(bounds[-1]), self.normalizer_.n_features, n_traversals)
         return self
 
     # -- querying -----------------------------------------------------------------------
@@ -270,14 +309,19 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         for enc in self.chunk_encoders_:
             fp.merge(enc.footprint())
         clf = self.chunk_classifier_
+        width = self._digit_width()
         fp.add("chunk_classifier", clf.paper_bytes(), clf.linear.nbytes)
-        fp.add("chunk_classifier_mask", self.n_features_in_ / 8.0, clf.mask_bytes(self.n_features_in_))
-        fp.add("normalization", 0.0, self.normalizer_.nbytes)
+        fp.add("chunk_classifier_mask", width / 8.0, clf.mask_bytes(width))
+        self.normalizer_.add_to(fp)
         return fp
+
+    def _digit_width(self) -> int:
+        out = self.normalizer_.n_outputs
+        return self.n_features_in_ if out is None else int(out)
 
     def _to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         self._check_fitted()
-        arrays = self.chunk_classifier_.to_arrays("chunk_clf", self.n_features_in_)
+        arrays = self.chunk_classifier_.to_arrays("chunk_clf", self._digit_width())
         arrays.update(self.normalizer_.to_arrays("norm"))
         chunks = []
         for c, enc in enumerate(self.chunk_encoders_):
@@ -297,17 +341,20 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
     def _from_arrays(
         cls, params: dict[str, Any], arrays: dict[str, np.ndarray], meta: dict[str, Any]
     ) -> ChunkedPlaceEncoder:
-        d = int(meta["n_features"])
         enc_params = {k: params[k] for k in _ENCODER_PARAMS if k in params}
         encoders = [
             PhaseEncoder._from_arrays({**enc_params, "normalize": False}, arrays, m, f"chunk.{c}.")
             for c, m in enumerate(meta["chunks"])
         ]
+        front = FrontEnd.from_arrays(arrays, "norm")
+        if front is None or front.normalizer is None:
+            raise ValueError("a chunked model stores its normaliser")
+        width = front.n_outputs or int(meta["n_features"])
         return cls.assemble(
             params,
-            Normalizer.from_arrays(arrays, "norm"),
+            front,
             np.asarray(meta["chunk_bounds"], dtype=np.int64),
-            DigitClassifier.from_arrays(arrays, "chunk_clf", d),
+            DigitClassifier.from_arrays(arrays, "chunk_clf", width),
             encoders,
             int(meta.get("n_traversals", 1)),
         )

@@ -23,6 +23,7 @@ class DigitClassifier:
     columns: np.ndarray  # selected descriptor columns, ascending
     linear: QuantizedLinear  # (n_classes, d') weights and biases
     pattern: PatternSelection | None = None  # kept after fit, not stored in artifacts
+    temperature: float = 1.0  # scores are divided by it before the log-softmax
 
     @classmethod
     def fit(
@@ -53,6 +54,7 @@ class DigitClassifier:
         random_state: int | None,
         n_jobs: int = 1,
         progress: StepFn | None = None,
+        temperature: float = 1.0,
     ) -> DigitClassifier:
         """Train the linear model on rows already restricted to ``pattern.columns``;
         ``progress(done, total)`` follows its classes."""
@@ -60,14 +62,18 @@ class DigitClassifier:
             X_sel, labels, n_classes, trainer, C=C, random_state=random_state, n_jobs=n_jobs,
             progress=progress,
         )
-        return cls(pattern.columns, QuantizedLinear.from_dense(W, b, dtype), pattern)
+        return cls(pattern.columns, QuantizedLinear.from_dense(W, b, dtype), pattern,
+                   float(temperature))  # fmt: skip
 
     @property
     def n_classes(self) -> int:
         return int(self.linear.weight.shape[0])
 
     def log_probs(self, Xn: np.ndarray) -> np.ndarray:
-        return log_probabilities(self.linear.scores(Xn[:, self.columns]))
+        scores = self.linear.scores(Xn[:, self.columns])
+        if self.temperature != 1.0:
+            scores = scores * (1.0 / self.temperature)  # as the serving plan scales them
+        return log_probabilities(scores)
 
     def paper_bytes(self) -> float:
         """``8(d'+1)`` per class: float64 weights plus bias."""
@@ -79,13 +85,17 @@ class DigitClassifier:
     def to_arrays(self, prefix: str, n_features: int) -> dict[str, np.ndarray]:
         out = self.linear.to_arrays(prefix)
         out[f"{prefix}.mask"] = pack_columns(self.columns, n_features)
+        if self.temperature != 1.0:  # absent in older artifacts: 1
+            out[f"{prefix}.temperature"] = np.array([self.temperature], dtype=np.float64)
         return out
 
     @classmethod
     def from_arrays(
         cls, arrays: dict[str, np.ndarray], prefix: str, n_features: int
     ) -> DigitClassifier:
+        temperature = arrays.get(f"{prefix}.temperature")
         return cls(
             unpack_columns(arrays[f"{prefix}.mask"], n_features),
             QuantizedLinear.from_arrays(arrays, prefix),
+            temperature=1.0 if temperature is None else float(temperature[0]),
         )

@@ -11,11 +11,13 @@ from service.encoding.base import Localization, PlaceRecognizer
 from service.encoding.decoding import DECODE_MODES, decode
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
-from service.encoding.normalization import Normalizer
+from service.encoding.front_end import FrontEnd
 from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, index_to_labels, validate_periods
 from service.encoding.progress import ProgressFn, Steps
+from service.encoding.prototype import DEFAULT_TEMPERATURE
 from service.encoding.quantization import check_dtype
+from service.encoding.residue import CODES, residue_periods, validate_residue_periods
 from service.encoding.serving_plan import plan_for
 from service.encoding.trainers import TRAINERS
 from service.encoding.traversals import as_traversals, per_place_C
@@ -42,6 +44,19 @@ class PhaseEncoder(PlaceRecognizer):
     normalize : z-score columns with the training statistics (stored in the model).
     random_state : seed for the trainers that use one.
     n_jobs : threads solving the one-vs-rest problems of ``logreg``/``svm`` (-1 = all cores).
+    code : ``mixed_radix`` (the paper's digits) or ``residue`` (``i mod τ_j``,
+        :mod:`service.encoding.residue`).
+    code_ratio : ``Στ ≈ code_ratio·N`` of automatic residue periods.
+    n_components : PCA components of the projection front-end (``None``: no projection,
+        :mod:`service.encoding.projection`).
+    whiten_power : whitening of the projection (component ``c`` divided by ``√λ_c^power``).
+    temperature : scores are divided by it before the log-softmax (``None``: the trainer's
+        default, :data:`service.encoding.prototype.DEFAULT_TEMPERATURE` for ``prototype``,
+        else 1); :func:`service.encoding.calibration.calibrate` fits it on held-out queries.
+
+    The constructor's defaults are the paper's algorithm, so the parameters recorded in older
+    artifacts keep their meaning; the product default is the ``robust`` preset
+    (:mod:`service.encoding.presets`, :class:`service.encoding.factory.ModelParams`).
     """
 
     kind = "phase_encoder"
@@ -60,6 +75,11 @@ class PhaseEncoder(PlaceRecognizer):
         normalize: bool = True,
         random_state: int | None = 0,
         n_jobs: int = 1,
+        code: str = "mixed_radix",
+        code_ratio: float = 1.0,
+        n_components: int | None = None,
+        whiten_power: float = 0.75,
+        temperature: float | None = None,
     ) -> None:
         self.n_patterns = n_patterns
         self.periods = periods
@@ -73,6 +93,11 @@ class PhaseEncoder(PlaceRecognizer):
         self.normalize = normalize
         self.random_state = random_state
         self.n_jobs = n_jobs
+        self.code = code
+        self.code_ratio = code_ratio
+        self.n_components = n_components
+        self.whiten_power = whiten_power
+        self.temperature = temperature
 
     # -- fitting ------------------------------------------------------------------------
     def _validate_params(self, n_features: int) -> None:
@@ -85,6 +110,16 @@ class PhaseEncoder(PlaceRecognizer):
                 f"unknown decode mode {self.decode!r}; choose one of {DECODE_MODES}"
             )
         check_dtype(self.dtype)
+        if self.code not in CODES:
+            raise InvalidParameterError(f"unknown code {self.code!r}; choose one of {CODES}")
+        if not self.code_ratio > 0:
+            raise InvalidParameterError(f"code_ratio must be > 0, got {self.code_ratio}")
+        if self.n_components is not None and int(self.n_components) < 1:
+            raise InvalidParameterError(f"n_components must be >= 1, got {self.n_components}")
+        if not 0.0 <= self.whiten_power <= 1.0:
+            raise InvalidParameterError(f"whiten_power must lie in [0, 1], got {self.whiten_power}")
+        if self.temperature is not None and not 0 < self.temperature < float("inf"):
+            raise InvalidParameterError(f"temperature must be > 0, got {self.temperature}")
         n_selected(n_features, self.rho)  # raises on rho outside (0, 1]
         if self.gamma is not None and not self.gamma >= 1:
             raise InvalidParameterError(f"gamma must be >= 1, got {self.gamma}")
@@ -106,15 +141,32 @@ class PhaseEncoder(PlaceRecognizer):
         tr = as_traversals(X, places)
         X = tr.rows
         self._validate_params(X.shape[1])
-        self.normalizer_ = Normalizer.fit(X) if self.normalize else None
-        Xn = self.normalizer_.transform(X) if self.normalizer_ is not None else X
-        return self._fit_normalised(Xn, progress, tr.places, tr.n_traversals)
+        front = FrontEnd.fit(X, bool(self.normalize), self.n_components, float(self.whiten_power),
+                             self.dtype)  # fmt: skip
+        self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
+        self.normalizer_ = front if front.normalizer or front.projection else None
+        self._set_fitted(self.n_frames_, X.shape[1], tr.n_traversals)
+        return self
 
     def periods_for(self, n_frames: int) -> tuple[int, ...]:
         """The periods a fit on ``n_frames`` frames uses (its progress counts their sum)."""
+        if self.code == "residue":
+            if self.periods is not None:
+                return validate_residue_periods(self.periods, n_frames)
+            return residue_periods(n_frames, int(self.n_patterns), float(self.code_ratio))
         if self.periods is not None:
             return validate_periods(self.periods, n_frames)
         return auto_periods(n_frames, int(self.n_patterns))
+
+    def frame_labels_(self) -> np.ndarray:
+        """``(N, k)`` digit labels of every frame of the fitted route."""
+        self._check_fitted()
+        return _labels(self.code, np.arange(self.n_frames_), self.periods_)
+
+    def _temperature(self) -> float:
+        if self.temperature is not None:
+            return float(self.temperature)
+        return DEFAULT_TEMPERATURE if self.trainer == "prototype" else 1.0
 
     def _fit_normalised(
         self,
@@ -123,13 +175,13 @@ class PhaseEncoder(PlaceRecognizer):
         places: np.ndarray | None = None,
         n_traversals: int = 1,
     ) -> PhaseEncoder:
-        """Fit on normalised rows; ``places`` (validated, every place 0…N−1 present) gives
-        each row's place, ``None`` means row i is place i."""
+        """Fit on rows that went through the front-end; ``places`` (validated, every place
+        0…N−1 present) gives each row's place, ``None`` means row i is place i."""
         d = Xn.shape[1]
         n = Xn.shape[0] if places is None else int(places.max()) + 1
         self._validate_params(d)
         self.periods_ = self.periods_for(n)
-        labels = index_to_labels(np.arange(n) if places is None else places, self.periods_)
+        labels = _labels(self.code, np.arange(n) if places is None else places, self.periods_)
         C = per_place_C(self.C, n, Xn.shape[0])
         k = len(self.periods_)
         steps = Steps(progress, [f"digit {j + 1}/{k}" for j in range(k)], self.periods_)
@@ -147,10 +199,10 @@ class PhaseEncoder(PlaceRecognizer):
                 random_state=self.random_state,
                 n_jobs=self.n_jobs,
                 progress=steps.step(j),
+                temperature=self._temperature(),
             ))  # fmt: skip
             steps.done(j)
-        if not self.normalize:
-            self.normalizer_ = None
+        self.normalizer_ = None  # fit() sets the front-end; a chunk's encoder has none
         self._set_fitted(n, d, n_traversals)
         return self
 
@@ -170,8 +222,16 @@ class PhaseEncoder(PlaceRecognizer):
         return self.normalizer_.transform(Q) if self.normalizer_ is not None else Q
 
     def _decode_normalised(self, Qn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Reference beam-search decode of already-normalised queries (indices, scores)."""
+        """Reference decode of queries that went through the front-end (indices, scores):
+        beam search over mixed-radix digits, every frame's labels for a residue code."""
         logps = [dc.log_probs(Qn) for dc in self.digits_]
+        if self.code == "residue":
+            labels = self.frame_labels_()
+            scores = np.zeros((Qn.shape[0], self.n_frames_))
+            for j, lp in enumerate(logps):
+                scores += lp[:, labels[:, j]]
+            index = scores.argmax(axis=1)
+            return index.astype(np.int64), scores[np.arange(Qn.shape[0]), index]
         return decode(logps, self.periods_, self.n_frames_, self.decode, int(self.beam_width))
 
     def frame_log_scores(self, X: Any) -> np.ndarray:
@@ -188,18 +248,25 @@ class PhaseEncoder(PlaceRecognizer):
     def footprint(self) -> Footprint:
         self._check_fitted()
         fp = Footprint()
+        width = self._digit_width()
         for dc in self.digits_:
             fp.add("encoders", dc.paper_bytes(), dc.linear.nbytes)
-            fp.add("masks", self.n_features_in_ / 8.0, dc.mask_bytes(self.n_features_in_))
+            fp.add("masks", width / 8.0, dc.mask_bytes(width))
         if self.normalizer_ is not None:
-            fp.add("normalization", 0.0, self.normalizer_.nbytes)
+            self.normalizer_.add_to(fp)
         return fp
+
+    def _digit_width(self) -> int:
+        """Width of the rows the digits see: the projection's, else the descriptors'."""
+        out = None if self.normalizer_ is None else self.normalizer_.n_outputs
+        return self.n_features_in_ if out is None else int(out)
 
     def _to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         self._check_fitted()
         arrays: dict[str, np.ndarray] = {}
+        width = self._digit_width()
         for j, dc in enumerate(self.digits_):
-            arrays.update(dc.to_arrays(f"{prefix}enc.{j}", self.n_features_in_))
+            arrays.update(dc.to_arrays(f"{prefix}enc.{j}", width))
         if self.normalizer_ is not None:
             arrays.update(self.normalizer_.to_arrays(f"{prefix}norm"))
         meta = {
@@ -220,13 +287,24 @@ class PhaseEncoder(PlaceRecognizer):
     ) -> PhaseEncoder:
         model = cls(**params)
         d = int(meta["n_features"])
-        model.periods_ = validate_periods(meta["periods"], int(meta["n_frames"]))
+        n = int(meta["n_frames"])
+        if model.code == "residue":
+            model.periods_ = validate_residue_periods(meta["periods"], n)
+        else:
+            model.periods_ = validate_periods(meta["periods"], n)
+        model.normalizer_ = FrontEnd.from_arrays(arrays, f"{prefix}norm")
+        width = d if model.normalizer_ is None or model.normalizer_.n_outputs is None else int(
+            model.normalizer_.n_outputs)  # fmt: skip
         model.digits_ = [
-            DigitClassifier.from_arrays(arrays, f"{prefix}enc.{j}", d)
+            DigitClassifier.from_arrays(arrays, f"{prefix}enc.{j}", width)
             for j in range(len(model.periods_))
         ]
-        model.normalizer_ = (
-            Normalizer.from_arrays(arrays, f"{prefix}norm") if model.normalize else None
-        )
-        model._set_fitted(int(meta["n_frames"]), d, int(meta.get("n_traversals", 1)))
+        model._set_fitted(n, d, int(meta.get("n_traversals", 1)))
         return model
+
+
+def _labels(code: str, places: np.ndarray, periods: tuple[int, ...]) -> np.ndarray:
+    """Digit labels ``(rows, k)`` of the given places."""
+    if code == "residue":
+        return np.asarray(places, np.int64)[:, None] % np.asarray(periods, np.int64)[None, :]
+    return index_to_labels(places, periods)

@@ -7,53 +7,72 @@ unchunked route (``n_chunks = 1``) gets a :class:`PhaseEncoder`, a longer one a
 
 from __future__ import annotations
 
-import importlib.util
-from functools import lru_cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
+from service.encoding.presets import DEFAULT_PRESET, PresetName, preset
 from service.errors import InvalidParameterError
 
 Period = Annotated[int, Field(ge=2, le=2**31 - 1)]
 
 PAPER_TRAINER = "logreg"  # LIBLINEAR L2 logistic regression, C = 4, as in the paper's code
+_DEFAULT = preset(DEFAULT_PRESET)
 
 
-@lru_cache(maxsize=1)
 def default_trainer() -> str:
-    """The trainer used when none is named (CLI, REST uploads, demo): the one place to
-    change the default.
+    """The trainer used when none is named (CLI, REST uploads, demo): the default preset's
+    (:data:`service.encoding.presets.DEFAULT_PRESET`), the one place to change it.
 
-    ``torch`` when PyTorch is installed (the logistic loss of ``logreg``, all classes at once,
-    several times faster), else ``ridge`` (closed form, faster still, slightly less precise).
-    The paper's ``logreg`` (:data:`PAPER_TRAINER`) stays available by name.
+    The paper's ``logreg`` (:data:`PAPER_TRAINER`) and the others stay available by name.
     """
-    return "torch" if importlib.util.find_spec("torch") is not None else "ridge"
+    return _DEFAULT.trainer
 
 
 class ModelParams(BaseModel):
-    """Every training parameter, each with a sensible default."""
+    """Every training parameter; the defaults are those of the default preset (``robust``).
+
+    ``encoder_preset=NAME`` takes the encoder-defining fields from that preset
+    (:mod:`service.encoding.presets`); fields given explicitly override it."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    n_patterns: int = Field(2, ge=1, le=16, description="number of phase encoders k")
+    encoder_preset: PresetName | None = Field(
+        None, description="named encoder configuration (paper | ridge | robust)"
+    )
+    n_patterns: int = Field(_DEFAULT.n_patterns, ge=1, le=16,
+                            description="number of phase encoders k")  # fmt: skip
     periods: tuple[Period, ...] | None = Field(
         None, min_length=1, max_length=64, description="explicit periods τ1…τk"
     )
-    rho: float = Field(0.5, gt=0.0, le=1.0, description="fraction of columns per encoder")
+    rho: float = Field(_DEFAULT.rho, gt=0.0, le=1.0, description="fraction of columns per encoder")
     gamma: float | None = Field(
         None, ge=1.0, allow_inf_nan=False, description="L1 bound of pattern weights"
     )
-    trainer: Literal["logreg", "svm", "ridge", "torch"] = Field(
-        default_factory=default_trainer, description="see default_trainer()"
+    trainer: Literal["logreg", "svm", "ridge", "torch", "prototype"] = Field(
+        _DEFAULT.trainer, description="see default_trainer()"
     )
-    C: float = Field(4.0, gt=0.0, allow_inf_nan=False, description="inverse regularisation strength")
+    C: float = Field(_DEFAULT.C, gt=0.0, allow_inf_nan=False,
+                     description="inverse regularisation strength")  # fmt: skip
     decode: Literal["joint", "argmax"] = "joint"
     beam_width: int = Field(64, ge=1, le=100_000)
-    dtype: Literal["float64", "float32", "float16", "int8"] = "float32"
+    dtype: Literal["float64", "float32", "float16", "int8"] = _DEFAULT.dtype
+    code: Literal["mixed_radix", "residue"] = Field(
+        _DEFAULT.code, description="digit labels: mixed radix (the paper's) or i mod τ_j"
+    )
+    code_ratio: float = Field(_DEFAULT.code_ratio, gt=0.0, le=64.0, allow_inf_nan=False,
+                              description="sum of automatic residue periods / N")  # fmt: skip
+    n_components: int | None = Field(
+        _DEFAULT.n_components, ge=1, le=65_536, description="PCA projection width (None: none)"
+    )
+    whiten_power: float = Field(_DEFAULT.whiten_power, ge=0.0, le=1.0,
+                                description="PCA whitening power")  # fmt: skip
+    temperature: float | None = Field(
+        _DEFAULT.temperature, gt=0.0, allow_inf_nan=False,
+        description="score temperature (None: the trainer's default)",
+    )
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int = Field(2, ge=1, le=100_000)
@@ -61,6 +80,17 @@ class ModelParams(BaseModel):
         1, ge=-1, description="parallel chunk processes, or one-vs-rest threads without chunks"
     )
     random_state: int | None = Field(0, ge=0, le=2**32 - 1, description="seed of the trainers")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _apply_preset(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("encoder_preset") is not None:
+            try:
+                chosen = preset(str(data["encoder_preset"])).params()
+            except KeyError:
+                return data  # the Literal field reports the unknown name
+            return {**chosen, **data}
+        return data
 
     @classmethod
     def parse(cls, **kwargs: object) -> ModelParams:
@@ -87,6 +117,11 @@ def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
         beam_width=params.beam_width,
         dtype=params.dtype,
         random_state=params.random_state,
+        code=params.code,
+        code_ratio=params.code_ratio,
+        n_components=params.n_components,
+        whiten_power=params.whiten_power,
+        temperature=params.temperature,
     )
     if params.n_chunks == 1:
         return PhaseEncoder(**common, n_jobs=params.n_jobs)

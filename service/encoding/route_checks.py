@@ -14,6 +14,7 @@ from service.encoding.chunked import plan_chunks
 from service.encoding.factory import ModelParams
 from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, validate_periods
+from service.encoding.residue import residue_periods, validate_residue_periods
 from service.errors import InvalidParameterError
 
 
@@ -36,6 +37,13 @@ def check_route(params: ModelParams, n_frames: int, n_features: int) -> None:
         n_selected(n_features, params.chunk_rho)
     if params.trainer == "torch" and importlib.util.find_spec("torch") is None:
         raise InvalidParameterError("trainer 'torch' needs PyTorch, which this server lacks")
+    if params.code == "residue":
+        for size in {smallest, largest}:
+            if params.periods is None:
+                residue_periods(size, params.n_patterns, params.code_ratio)
+            else:
+                validate_residue_periods(params.periods, size)
+        return
     if params.periods is None:
         auto_periods(smallest, params.n_patterns)  # too many patterns for the route
         return

@@ -173,7 +173,12 @@ class ServingPlan:
             self.bounds = np.asarray(model.chunk_bounds_, dtype=np.int64)
             self.chunk = DigitBlock.of(model.chunk_classifier_)
             self.top = min(int(model.top_chunks), len(self.phases))
-        norm = getattr(model, "normalizer_", None)
+        front = getattr(model, "normalizer_", None)
+        # A projected front-end is applied in float64 (and rounded for float32 products);
+        # a bare normaliser has the fused float32 path of normalise().
+        self.projected = front is not None and getattr(front, "projection", None) is not None
+        self.front = front
+        norm = getattr(front, "normalizer", front)
         self.normalizer = norm
         self.mean = None if norm is None else norm.mean.astype(np.float64)
         self.scale = None if norm is None else norm.scale.astype(np.float64)
@@ -197,7 +202,10 @@ class ServingPlan:
     # -- helpers --------------------------------------------------------------------
     def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
         """Z-scores exactly as the model's normaliser computes them, with its refusal of values
-        that would overflow once normalised (``dtype`` float32: the float64 values rounded)."""
+        that would overflow once normalised (``dtype`` float32: the float64 values rounded).
+        With a projection: the front-end's float64 rows, rounded for ``float32``."""
+        if self.projected:
+            return self.front.transform(Q).astype(dtype, copy=False)  # type: ignore[no-any-return]
         if self.normalizer is None:
             return Q.astype(dtype, copy=False)
         if dtype is np.float64:

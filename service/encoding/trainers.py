@@ -14,6 +14,8 @@ where LIBLINEAR does so, in ``logreg`` and ``svm``):
 - ``ridge``: closed-form least squares on one-hot targets, in whichever of the primal
   ``d'×d'`` or dual ``N×N`` systems is smaller.
 - ``torch``: all classes at once with L-BFGS on the logistic loss; CUDA when available.
+- ``prototype``: each class's normalised mean row, bias 0 (:mod:`service.encoding.prototype`;
+  no loss, ``C`` unused).
 """
 
 from __future__ import annotations
@@ -28,10 +30,11 @@ from typing import Any, Literal
 import numpy as np
 
 from service.encoding.progress import StepFn
+from service.encoding.prototype import fit_prototypes
 from service.errors import InvalidParameterError
 
-TrainerName = Literal["logreg", "svm", "ridge", "torch"]
-TRAINERS: tuple[str, ...] = ("logreg", "svm", "ridge", "torch")
+TrainerName = Literal["logreg", "svm", "ridge", "torch", "prototype"]
+TRAINERS: tuple[str, ...] = ("logreg", "svm", "ridge", "torch", "prototype")
 
 LinearModel = tuple[np.ndarray, np.ndarray]
 
@@ -225,4 +228,5 @@ _TRAINERS: dict[str, Callable[..., LinearModel]] = {
     "svm": _binary_loop(_make_svm),
     "ridge": _fit_ridge,
     "torch": _fit_torch,
+    "prototype": fit_prototypes,
 }

@@ -26,11 +26,10 @@ from service.encoding.chunked import (
     ChunkedPlaceEncoder,
     fit_chunk_classifier,
     fit_chunk_encoder,
+    fit_front_end,
     plan_chunks,
 )
 from service.encoding.encoder import PhaseEncoder
-from service.encoding.normalization import Normalizer
-from service.encoding.phases import validate_periods
 from service.encoding.progress import is_per_class
 from service.encoding.traversals import Traversals, check_places, chunk_rows, count_places
 from service.errors import (
@@ -204,7 +203,7 @@ def _validate(params: ModelParams, n_features: int, sizes: list[int]) -> None:
     encoder._validate_params(n_features)
     if params.periods is not None:
         for size in sizes:
-            validate_periods(params.periods, size)
+            encoder.periods_for(size)  # the code's own rule (mixed radix or residue)
 
 
 def train_single(data_dir: Path, job_id: str) -> int:
@@ -237,7 +236,7 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
     bounds = plan_chunks(n_places, params.n_chunks)
     _validate(params, X.shape[1], np.diff(bounds).tolist())
     workspace = Workspace(data_dir, job_id)
-    prep = Prep(Normalizer.fit(X), bounds)
+    prep = Prep(fit_front_end(X, params.model_dump()), bounds)
     _write_while_open(registry, job_id, workspace, "the preparation",
                       lambda: workspace.save_prep(prep))  # fmt: skip
     registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start},

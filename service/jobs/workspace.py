@@ -28,7 +28,7 @@ from safetensors.numpy import load_file, save_file
 from service.encoding import load_model, save_model
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.encoder import PhaseEncoder
-from service.encoding.normalization import Normalizer
+from service.encoding.front_end import FrontEnd
 from service.errors import ArtifactError, ConflictError, NotFoundError
 
 if TYPE_CHECKING:
@@ -52,9 +52,10 @@ CLASSIFIER = "chunk_classifier.safetensors"
 
 @dataclass(frozen=True)
 class Prep:
-    """What every chunk job needs: route-wide normalisation and the chunk boundaries."""
+    """What every chunk job needs: the route-wide front-end (normaliser and projection) and
+    the chunk boundaries."""
 
-    normalizer: Normalizer
+    normalizer: FrontEnd
     bounds: np.ndarray  # int64 [0, e1, ..., N]
 
     @property
@@ -83,7 +84,10 @@ class Workspace:
 
     def load_prep(self) -> Prep:
         arrays = self._load_arrays(PREP)
-        return Prep(Normalizer.from_arrays(arrays, "norm"), arrays["bounds"].astype(np.int64))
+        front = FrontEnd.from_arrays(arrays, "norm")
+        if front is None:
+            raise ArtifactError(f"the preparation of job {self.path.name} stores no normaliser")
+        return Prep(front, arrays["bounds"].astype(np.int64))
 
     # -- chunk classifier -----------------------------------------------------------------
     def save_classifier(self, classifier: DigitClassifier, n_features: int) -> None:

@@ -20,7 +20,8 @@ MAX_PATTERNS = 16  # phase encoders k chosen automatically
 MAX_PERIODS = 64  # explicit periods τ1…τk (a product beyond 2^63 frames is meaningless)
 MAX_PERIOD = 2**31 - 1
 MAX_SEED = 2**32 - 1  # numpy / scikit-learn seeds
-Trainer = Literal["logreg", "svm", "ridge", "torch"]
+Trainer = Literal["logreg", "svm", "ridge", "torch", "prototype"]
+EncoderPreset = Literal["paper", "ridge", "robust"]  # service.encoding.presets
 DecodeMode = Literal["joint", "argmax"]
 StorageDtype = Literal["float64", "float32", "float16", "int8"]
 ExtractorKind = Literal["patchnorm", "hog", "cnn"]
@@ -35,6 +36,10 @@ UPLOAD_FIELDS = ("allow_dimension_change", "force")
 class TrainingOptions(Request):
     """Training (and, for image archives, extractor) options; ``None`` = the server's default."""
 
+    encoder_preset: EncoderPreset | None = Field(
+        None, description="named encoder configuration; the fields below override it "
+        "(default: the server's, robust)",
+    )  # fmt: skip
     n_patterns: int | None = Field(None, ge=1, le=MAX_PATTERNS, description="phase encoders k")
     periods: list[Period] | None = Field(
         None, min_length=1, max_length=MAX_PERIODS,

@@ -69,7 +69,9 @@ def test_chunked_training_from_the_cli(files: dict[str, Path]) -> None:
 @pytest.mark.parametrize(
     "args,needle",
     [
-        (["--periods", "5,5"], "smaller than the number of frames"),
+        (["--preset", "paper", "--periods", "5,5"], "smaller than the number of frames"),
+        (["--periods", "5,5"], "pairwise distinct"),
+        (["--preset", "fancy"], "encoder_preset"),
         (["--rho", "1.5"], "rho"),
         (["--trainer", "forest"], "trainer"),
     ],

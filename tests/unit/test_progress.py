@@ -3,7 +3,6 @@ that runs before a fit. Routes are SYNTHETIC (smooth random process)."""
 
 from __future__ import annotations
 
-import importlib.util
 import threading
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from service.encoding import (
     default_trainer,
     save_model,
 )
+from service.encoding.presets import DEFAULT_PRESET, preset
 from service.encoding.progress import Steps
 from service.encoding.synthetic import smooth_route
 from service.errors import ConflictError, InvalidInputError, NotFittedError
@@ -135,20 +135,14 @@ def test_steps_never_move_backwards_under_concurrent_reports() -> None:
     assert done == sorted(done) and done[-1] == 1000
 
 
-def test_default_trainer_is_torch_when_installed_else_ridge(monkeypatch: pytest.MonkeyPatch) -> None:
-    has_torch = importlib.util.find_spec("torch") is not None
-    assert default_trainer() == ("torch" if has_torch else "ridge")
+def test_default_trainer_is_the_default_presets() -> None:
+    assert default_trainer() == preset(DEFAULT_PRESET).trainer == "prototype"
     assert ModelParams().trainer == default_trainer()
     assert ModelParams(trainer="logreg").trainer == "logreg"  # the paper's, by name
-    real_find_spec = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real_find_spec(name, *a)
-    )
-    default_trainer.cache_clear()
-    try:
-        assert default_trainer() == "ridge" and ModelParams().trainer == "ridge"
-    finally:
-        default_trainer.cache_clear()
+    paper = ModelParams(encoder_preset="paper")
+    assert (paper.trainer, paper.code, paper.n_patterns, paper.n_components) == (
+        "logreg", "mixed_radix", 2, None)
+    assert ModelParams(encoder_preset="paper", trainer="ridge").trainer == "ridge"
 
 
 def test_artifact_path_check_before_training(tmp_path: Path, X: np.ndarray) -> None:
