@@ -310,7 +310,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
             fp.merge(enc.footprint())
         clf = self.chunk_classifier_
         width = self._digit_width()
-        fp.add("chunk_classifier", clf.paper_bytes(), clf.linear.nbytes)
+        fp.add("chunk_classifier", clf.paper_bytes(), clf.nbytes)
         fp.add("chunk_classifier_mask", width / 8.0, clf.mask_bytes(width))
         self.normalizer_.add_to(fp)
         return fp

@@ -75,6 +75,11 @@ class DigitClassifier:
             scores = scores * (1.0 / self.temperature)  # as the serving plan scales them
         return log_probabilities(scores)
 
+    @property
+    def nbytes(self) -> int:
+        """Stored bytes: the weights, and the temperature where it is not 1."""
+        return self.linear.nbytes + (8 if self.temperature != 1.0 else 0)
+
     def paper_bytes(self) -> float:
         """``8(d'+1)`` per class: float64 weights plus bias."""
         return 8.0 * (self.columns.size + 1) * self.n_classes

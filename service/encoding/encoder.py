@@ -250,7 +250,7 @@ class PhaseEncoder(PlaceRecognizer):
         fp = Footprint()
         width = self._digit_width()
         for dc in self.digits_:
-            fp.add("encoders", dc.paper_bytes(), dc.linear.nbytes)
+            fp.add("encoders", dc.paper_bytes(), dc.nbytes)
             fp.add("masks", width / 8.0, dc.mask_bytes(width))
         if self.normalizer_ is not None:
             self.normalizer_.add_to(fp)

@@ -283,3 +283,49 @@ def test_a_front_end_beyond_mean_and_scale_is_the_plans_own_in_the_single_path()
     batch = plan.decode(Q)
     np.testing.assert_array_equal(index, batch.index)
     np.testing.assert_array_equal(chunk, batch.chunk)
+
+
+@given(
+    periods=st.lists(st.integers(2, 40), min_size=1, max_size=4, unique=True).map(tuple),
+    frac=st.floats(0.2, 1.0),
+    components=st.sampled_from([None, 4, 10]),
+    trainer=st.sampled_from(["prototype", "ridge"]),
+    temperature=st.sampled_from([None, 0.05, 3.0]),
+    seed=st.integers(0, 2**16),
+)
+@settings(max_examples=30, deadline=None)
+def test_residue_codes_decode_the_best_frame_exactly(
+    periods: tuple[int, ...], frac: float, components: int | None, trainer: str,
+    temperature: float | None, seed: int,
+) -> None:  # fmt: skip
+    n = max(2, min(300, int(frac * math.lcm(*periods))))
+    route = smooth_route(n, 12, seed=seed)
+    model = PhaseEncoder(code="residue", periods=periods, rho=1.0, trainer=trainer,
+                         n_components=components, temperature=temperature).fit(route.reference)  # fmt: skip
+    assert plan_for(model).phases[0].labels is not None or len(periods) == 1
+    Q = np.concatenate([route.query, np.random.default_rng(seed).standard_normal((10, 12)) * 3])
+    check_exact(model, Q.astype(np.float64))
+    np.testing.assert_allclose(model.frame_log_scores(Q[:8]), brute_force(model, Q[:8]), rtol=1e-12)
+    index, _, score = reference_localize(model, Q)
+    np.testing.assert_array_equal(model.localize(Q).index, index)
+    np.testing.assert_allclose(model.localize(Q).log_score, score, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "int8"])
+@pytest.mark.parametrize("top_chunks", [1, 3])
+def test_chunked_residue_routes_with_a_shared_projection_decode_exactly(
+    dtype: str, top_chunks: int
+) -> None:
+    route = smooth_route(437, 24, seed=11)
+    model = ChunkedPlaceEncoder(n_chunks=4, n_patterns=4, code="residue", rho=1.0,
+                                trainer="prototype", n_components=12, dtype=dtype,
+                                top_chunks=top_chunks).fit(route.reference)  # fmt: skip
+    assert all(e.normalizer_ is None for e in model.chunk_encoders_)  # one front-end, shared
+    Q = route.query.astype(np.float64)
+    check_exact(model, Q)
+    np.testing.assert_allclose(model.frame_log_scores(Q[:20]), brute_force(model, Q[:20]),
+                               rtol=1e-12)  # fmt: skip
+    index, chunk, _ = reference_localize(model, Q)
+    loc = model.localize(Q)
+    np.testing.assert_array_equal(loc.index, index)
+    np.testing.assert_array_equal(loc.chunk, chunk)
