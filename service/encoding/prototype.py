@@ -13,11 +13,12 @@ import numpy as np
 
 _MIN_NORM = 1e-12  # a class whose rows cancel out scores 0 rather than NaN
 
-#: Temperature of prototype classifiers when none is given: the value
+#: Temperature of prototype classifiers when none is given: about what
 #: :func:`service.encoding.calibration.calibrate` fits for the ``robust`` preset on the
-#: tuning half of Nordland (summer reference, winter queries); scores are cosines, so it is a
-#: property of the score scale rather than of one route.
-DEFAULT_TEMPERATURE = 0.04
+#: tuning half of Nordland (summer reference, winter queries: 0.11 on patch-normalised
+#: frames, 0.10 on CNN descriptors); scores are cosines, so it is a property of the score
+#: scale rather than of one route.
+DEFAULT_TEMPERATURE = 0.1
 
 
 def fit_prototypes(

@@ -70,7 +70,8 @@ def test_unchunked_route_and_a_failing_route(data_dir, redis_url, workers):
     route = _route(data_dir, 300, 32)
     ok = backend.submit("small", route, ModelParams.parse(trainer="ridge"), None, None)
     bad = backend.submit("broken", route, ModelParams.parse(trainer="ridge", n_chunks=2,
-                                                            periods=(3, 3)), None, None)  # fmt: skip
+                                                            periods=(3, 3), code="mixed_radix"),
+                           None, None)  # fmt: skip
     assert _wait(backend, ok.id).version == 1
     failed = _wait(backend, bad.id)
     assert failed.state == "failed" and "product of periods" in failed.error
