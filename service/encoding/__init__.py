@@ -14,17 +14,21 @@ from service.encoding.artifacts import (
 )
 from service.encoding.base import Localization, PlaceRecognizer, precision_at
 from service.encoding.baselines import ExactNN, RhythmicEncoder
+from service.encoding.calibration import calibrate
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.factory import ModelParams, build_model, default_trainer
 from service.encoding.footprint import Footprint
 from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
+from service.encoding.presets import DEFAULT_PRESET, PRESETS
 from service.encoding.route_checks import check_route
 from service.encoding.validation import check_descriptors
 from service.npyfile import load_npy
 
 __all__ = [
+    "DEFAULT_PRESET",
+    "PRESETS",
     "ChunkedPlaceEncoder",
     "ExactNN",
     "Footprint",
@@ -36,6 +40,7 @@ __all__ = [
     "RhythmicEncoder",
     "auto_periods",
     "build_model",
+    "calibrate",
     "check_descriptors",
     "check_new_artifact_dir",
     "check_route",
