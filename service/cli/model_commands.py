@@ -60,8 +60,8 @@ def train(
                                               show_default=False)] = None,
     gamma: Annotated[float | None, typer.Option(help="L1 bound (default sqrt(d'))")] = None,
     trainer: Annotated[str | None, typer.Option(
-        help="logreg (the paper's) | svm | ridge | torch | prototype "
-        f"(default: {default_trainer()})",
+        help=f"(default: {default_trainer()}) logreg (the paper's) | svm | ridge | torch | "
+        "prototype",
         show_default=False)] = None,
     c: Annotated[float | None, typer.Option("--C", help="inverse regularisation",
                                             show_default=False)] = None,
