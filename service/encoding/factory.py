@@ -35,7 +35,9 @@ class ModelParams(BaseModel):
     """Every training parameter; the defaults are those of the default preset (``robust``).
 
     ``encoder_preset=NAME`` takes the encoder-defining fields from that preset
-    (:mod:`service.encoding.presets`); fields given explicitly override it."""
+    (:mod:`service.encoding.presets`); fields given explicitly override it. Explicit
+    ``periods`` without an explicit ``code`` are mixed-radix periods, as they have always
+    been (product ≥ N); residue periods are named with ``code="residue"``."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -84,7 +86,11 @@ class ModelParams(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _apply_preset(cls, data: Any) -> Any:
-        if isinstance(data, dict) and data.get("encoder_preset") is not None:
+        if not isinstance(data, dict):
+            return data
+        if data.get("periods") is not None and data.get("code") is None:
+            data = {**data, "code": "mixed_radix"}
+        if data.get("encoder_preset") is not None:
             try:
                 chosen = preset(str(data["encoder_preset"])).params()
             except KeyError:

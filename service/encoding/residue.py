@@ -74,6 +74,12 @@ def residue_periods(n_frames: int, n_patterns: int, ratio: float = 1.0) -> tuple
         raise InvalidParameterError(f"the number of patterns must be >= 1, got {n_patterns}")
     if not ratio > 0:
         raise InvalidParameterError(f"code_ratio must be > 0, got {ratio}")
+    max_k = max(1, math.ceil(math.log2(n_frames)))  # the mixed-radix code's bound too
+    if k > max_k:
+        raise InvalidParameterError(
+            f"{k} patterns is too many for {n_frames} frames: at most {max_k} (log2 N) digits",
+            n_frames=n_frames, max_patterns=max_k,
+        )  # fmt: skip
     if k == 1:
         return (max(2, n_frames),)
     floor = sum(range(2, 2 + k))  # the smallest sum of k distinct periods >= 2

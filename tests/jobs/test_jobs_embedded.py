@@ -91,8 +91,9 @@ def test_same_idempotency_key_never_trains_twice(backend, registry, route_file, 
     [
         ({"code": "mixed_radix", "periods": (5, 5)}, "product of periods"),
         ({"code": "mixed_radix", "n_chunks": 2, "periods": (4, 4)}, "product of periods"),
-        ({"periods": (5, 5)}, "pairwise distinct"),
-        ({"n_chunks": 2, "periods": (4, 5)}, "fewer than"),
+        ({"periods": (5, 5)}, "product of periods"),  # explicit periods: mixed radix
+        ({"code": "residue", "periods": (5, 5)}, "pairwise distinct"),
+        ({"code": "residue", "n_chunks": 2, "periods": (4, 5)}, "fewer than"),
         ({"n_chunks": 300}, "too few"),
     ],
 )

@@ -70,7 +70,8 @@ def test_chunked_training_from_the_cli(files: dict[str, Path]) -> None:
     "args,needle",
     [
         (["--preset", "paper", "--periods", "5,5"], "smaller than the number of frames"),
-        (["--periods", "5,5"], "pairwise distinct"),
+        (["--periods", "5,5"], "smaller than the number of frames"),  # periods: mixed radix
+        (["--code", "residue", "--periods", "5,5"], "pairwise distinct"),
         (["--preset", "fancy"], "encoder_preset"),
         (["--rho", "1.5"], "rho"),
         (["--trainer", "forest"], "trainer"),

@@ -108,6 +108,10 @@ def test_prototype_is_the_normalised_class_mean(n: int, d: int, classes: int, se
 def test_residue_periods_are_distinct_cover_the_route_and_sum_near_ratio_n(
     n: int, k: int, ratio: float
 ) -> None:
+    if k > math.ceil(math.log2(n)):
+        with pytest.raises(InvalidParameterError, match="too many"):
+            residue_periods(n, k, ratio)
+        return
     periods = residue_periods(n, k, ratio)
     assert len(periods) == k and len(set(periods)) == k and min(periods) >= 2
     assert math.lcm(*periods) >= n
@@ -240,6 +244,7 @@ def test_a_residue_route_refuses_impossible_periods_before_training() -> None:
     from service.encoding import check_route
 
     with pytest.raises(InvalidParameterError, match="pairwise distinct"):
-        check_route(ModelParams(periods=(5, 5)), 20, 8)
+        check_route(ModelParams(periods=(5, 5), code="residue"), 20, 8)
+    assert ModelParams(periods=(5, 5)).code == "mixed_radix"  # explicit periods: as always
     check_route(ModelParams(), 20, 8)
     check_route(ModelParams(n_chunks=4), 4000, 8)
