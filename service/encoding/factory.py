@@ -42,7 +42,7 @@ class ModelParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     encoder_preset: PresetName | None = Field(
-        None, description="named encoder configuration (paper | ridge | robust)"
+        None, description="named encoder configuration (paper | ridge | robust | residue)"
     )
     n_patterns: int = Field(_DEFAULT.n_patterns, ge=1, le=16,
                             description="number of phase encoders k")  # fmt: skip

@@ -9,13 +9,19 @@ the preset's.
 - ``paper``: Le & Milford's code: LIBLINEAR logistic regression (``C = 4``), mixed-radix
   digits, ``k = 2``, ``ρ = 0.5``, no projection, float32.
 - ``ridge``: the same code with the closed-form ridge trainer (the earlier fast default).
-- ``robust``: PCA-128 front-end whitened with power 0.75, ``prototype`` classifiers,
-  residue code with ``k = 2`` and ``Στ ≈ N``, every projected column, int8 weights, the
-  prototype temperature. ``k`` was chosen on the tuning half of Nordland among 2, 3, 4 and 6
-  (fewer digits pool fewer far-apart frames into each class). Measured across seasons on Nordland (summer reference, winter
-  queries) it is far above the mixed-radix presets, which are near chance there; its storage
-  is ``≈ Στ·n_components`` bytes (linear in ``N`` at ``Στ ≈ N``, about 128 B per frame) plus
-  the fixed projection.
+- ``robust``: PCA-128 front-end whitened with power 0.75, ``prototype`` classifiers, int8
+  weights, one digit whose period is the route (``k = 1``): one class per frame, i.e. a
+  cosine nearest neighbour in the projected space with a softmax over the frames
+  (temperature calibrated on the tuning half of Nordland). ``k`` was chosen there among
+  1, 2, 3, 4 and 6 at the same storage (``Στ = N``): every extra digit pools far-apart frames
+  into one class and loses precision.
+- ``residue``: the same front-end and trainer with the best multi-digit code measured: residue
+  digits ``i mod τ_j``, ``k = 2``, ``Στ ≈ N``.
+
+Measured across seasons on Nordland (summer reference, winter queries) both are far above
+the mixed-radix presets, which are near chance there. Their storage is ``≈ Στ·n_components``
+bytes (about 136 B per frame with biases and scales: linear in ``N``) plus the fixed
+projection.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-PresetName = Literal["paper", "ridge", "robust"]
+PresetName = Literal["paper", "ridge", "robust", "residue"]
 DEFAULT_PRESET: PresetName = "robust"
 
 
@@ -62,10 +68,15 @@ PRESETS: dict[str, EncoderPreset] = {
         dtype="float32",
     ),
     "robust": EncoderPreset(
-        description="PCA-128 whitened 0.75, prototype classifiers, residue code k=2 "
-        "(sum of periods = N), int8: robust across conditions (the default)",
+        description="PCA-128 whitened 0.75, one int8 prototype per frame (k=1, a softmax "
+        "over the frames): robust across conditions (the default)",
+        trainer="prototype", code="residue", code_ratio=1.0, n_patterns=1, rho=1.0,
+        n_components=128, whiten_power=0.75, dtype="int8", temperature=0.038,
+    ),
+    "residue": EncoderPreset(
+        description="as robust, with residue digits i mod tau_j, k=2, sum of periods = N",
         trainer="prototype", code="residue", code_ratio=1.0, n_patterns=2, rho=1.0,
-        n_components=128, whiten_power=0.75, dtype="int8",
+        n_components=128, whiten_power=0.75, dtype="int8", temperature=0.07,
     ),
 }  # fmt: skip
 

@@ -14,8 +14,9 @@ import numpy as np
 _MIN_NORM = 1e-12  # a class whose rows cancel out scores 0 rather than NaN
 
 #: Temperature of prototype classifiers when none is given: about what
-#: :func:`service.encoding.calibration.calibrate` fits for the ``robust`` preset (``k = 2``)
-#: on the tuning half of Nordland (summer reference, winter queries: 0.070 on
+#: :func:`service.encoding.calibration.calibrate` fits for a ``k = 2`` residue code (the
+#: ``residue`` preset; the ``robust`` preset, ``k = 1``, names its own, 0.038) on the
+#: tuning half of Nordland (summer reference, winter queries: 0.070 on
 #: patch-normalised frames, 0.066 on CNN descriptors). Scores are cosines, so it is a
 #: property of the score scale and of ``k`` rather than of one route; calibrate a model on
 #: held-out queries of its own route where there are some.

@@ -153,7 +153,7 @@ def test_a_noiseless_route_is_decoded_exactly(seed: int, n: int, k: int, trainer
 def test_calibration_fits_on_the_validation_split_only(tmp_path: Path) -> None:
     route = smooth_route(300, 32, seed=4)
     model = build_model(ModelParams()).fit(route.reference)
-    assert model.digits_[0].temperature == DEFAULT_TEMPERATURE
+    assert model.digits_[0].temperature == PRESETS[DEFAULT_PRESET].temperature
     val, test = np.arange(0, 300, 2), np.arange(1, 300, 2)
     Q = route.query.astype(np.float64).copy()
     Q_val, truth_val = Q[val].copy(), val.copy()
@@ -226,6 +226,26 @@ def test_footprint_counts_the_projection() -> None:
     assert fp.components["encoders"].actual_bytes == (16 + 8) * sum(model.periods_) + 8 * 4
     assert fp.components["masks"].paper_bytes == 4 * 16 / 8  # masks over projected columns
     assert model.n_features_in_ == 40 and all(dc.columns.max() < 16 for dc in model.digits_)
+
+
+def test_a_prototype_without_a_temperature_takes_the_trainers_default() -> None:
+    route = smooth_route(120, 16, seed=5)
+    model = PhaseEncoder(code="residue", trainer="prototype").fit(route.reference)
+    assert all(dc.temperature == DEFAULT_TEMPERATURE for dc in model.digits_)
+    assert PhaseEncoder(trainer="ridge").fit(route.reference).digits_[0].temperature == 1.0
+
+
+def test_one_residue_digit_is_a_softmax_over_the_frames() -> None:
+    """The robust preset's k = 1: one class per frame, its prototype the frame's own
+    projected row, so the answer is the cosine nearest neighbour in the projected space."""
+    route = smooth_route(300, 32, seed=8)
+    model = build_model(ModelParams()).fit(route.reference)
+    assert model.periods_ == (300,)  # type: ignore[union-attr]
+    front = model.normalizer_  # type: ignore[union-attr]
+    R, Q = front.transform(route.reference), front.transform(route.query)
+    W, _ = model.digits_[0].linear.dense  # type: ignore[union-attr]
+    np.testing.assert_array_equal(model.predict(route.query), (Q @ W.T).argmax(axis=1))
+    assert (np.abs(R @ W.T).argmax(axis=1) == np.arange(300)).mean() > 0.99  # int8 rounding
 
 
 def test_sklearn_contract_with_the_new_parameters() -> None:
