@@ -37,7 +37,8 @@ class ModelParams(BaseModel):
     ``encoder_preset=NAME`` takes the encoder-defining fields from that preset
     (:mod:`service.encoding.presets`); fields given explicitly override it. Explicit
     ``periods`` without an explicit ``code`` are mixed-radix periods, as they have always
-    been (product ≥ N); residue periods are named with ``code="residue"``."""
+    been (product ≥ N); residue periods are named with ``code="residue"``. Another trainer
+    than the preset's drops the preset's calibrated temperature (its own default applies)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -90,13 +91,14 @@ class ModelParams(BaseModel):
             return data
         if data.get("periods") is not None and data.get("code") is None:
             data = {**data, "code": "mixed_radix"}
-        if data.get("encoder_preset") is not None:
-            try:
-                chosen = preset(str(data["encoder_preset"])).params()
-            except KeyError:
-                return data  # the Literal field reports the unknown name
-            return {**chosen, **data}
-        return data
+        try:
+            base = preset(str(data.get("encoder_preset") or DEFAULT_PRESET))
+        except KeyError:
+            return data  # the Literal field reports the unknown name
+        out = {**base.params(), **data}
+        if out["trainer"] != base.trainer and data.get("temperature") is None:
+            out["temperature"] = None  # the preset's T was calibrated for its own trainer
+        return out
 
     @classmethod
     def parse(cls, **kwargs: object) -> ModelParams:

@@ -189,6 +189,8 @@ def test_the_default_is_the_robust_preset() -> None:
     assert ModelParams(encoder_preset="robust") == params.model_copy(update={"encoder_preset": "robust"})
     with pytest.raises(InvalidParameterError, match="encoder_preset"):
         ModelParams.parse(encoder_preset="fancy")
+    assert ModelParams(trainer="ridge").temperature is None  # robust's T is the prototype's
+    assert ModelParams(trainer="ridge", temperature=2.0).temperature == 2.0
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
