@@ -68,7 +68,10 @@ def check_exact(model: PhaseEncoder | ChunkedPlaceEncoder, Q: np.ndarray) -> Non
         assert ((d.index >= 0) & (d.index < model.n_frames_)).all()
         # the answer is a best frame (equal scores only on an exact tie)
         np.testing.assert_array_equal(F[np.arange(Q.shape[0]), d.index], best)
-        np.testing.assert_allclose(d.log_score, best, rtol=1e-5, atol=1e-6)
+        # the index is certified; a float32 score carries float32 rounding of products and
+        # log-sum-exps whose terms reach 1/T (tens, for a calibrated prototype temperature)
+        atol = 1e-4 if precision == "float32" else 1e-6
+        np.testing.assert_allclose(d.log_score, best, rtol=1e-5, atol=atol)
         bounds = getattr(model, "chunk_bounds_", np.array([0, model.n_frames_]))
         np.testing.assert_array_equal(np.searchsorted(bounds, d.index, side="right") - 1, d.chunk)
 
@@ -308,7 +311,8 @@ def test_residue_codes_decode_the_best_frame_exactly(
     np.testing.assert_allclose(model.frame_log_scores(Q[:8]), brute_force(model, Q[:8]), rtol=1e-12)
     index, _, score = reference_localize(model, Q)
     np.testing.assert_array_equal(model.localize(Q).index, index)
-    np.testing.assert_allclose(model.localize(Q).log_score, score, rtol=1e-5, atol=1e-6)
+    # localize answers with the float32 score of the certified index (see check_exact)
+    np.testing.assert_allclose(model.localize(Q).log_score, score, rtol=1e-5, atol=1e-4)
 
 
 @pytest.mark.parametrize("dtype", ["float32", "int8"])
