@@ -274,7 +274,7 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
                    noisy_d: int, params: dict[str, str], out: Path, window: int = 16,
                    compare: bool = True, wait_grid: list[float] | None = None,
-                   floor: bool = True) -> dict[str, Any]:  # fmt: skip
+                   floor: bool = True, grid_frames: int = 15_000) -> dict[str, Any]:  # fmt: skip
     ref, qry, period, label = bench_data(n_frames)
     noisy = smooth_route(n_frames, noisy_d, query_noise=noise, seed=1)  # SYNTHETIC
     token = secrets.token_hex(16)
@@ -292,8 +292,8 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         grid = None
         if wait_grid:
             with console.status(f"micro-batch waits {wait_grid} ms…"):
-                grid = measure_wait_grid(data_dir, token, qry, period, frames, n_streams, window,
-                                         wait_grid)  # fmt: skip
+                grid = measure_wait_grid(data_dir, token, qry, period, grid_frames, n_streams,
+                                         window, wait_grid)  # fmt: skip
     key = f"grpc_streams_{n_streams}"
     same = None
     if compare:

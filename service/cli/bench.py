@@ -78,6 +78,7 @@ def bench_grpc(
         help="also measure the streams against a server that does no work (the gRPC floor)")] = True,
     wait_grid: Annotated[str, typer.Option(
         help="micro-batch waits to compare, ms, comma-separated (e.g. 0,0.5,2; empty: none)")] = "",
+    grid_frames: Annotated[int, typer.Option(help="frames per wait of the grid (5 rounds)")] = 15_000,
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-grpc.json"),
 ) -> None:
     """gRPC frames/s on 1 and N streams beside REST, micro-batched and not, and what sequence
@@ -87,7 +88,7 @@ def bench_grpc(
     params = {"trainer": trainer, "n_patterns": str(patterns)}
     waits = [float(w) for w in wait_grid.split(",") if w.strip()]
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
-                   window, compare, waits or None, floor)  # fmt: skip
+                   window, compare, waits or None, floor, grid_frames)  # fmt: skip
 
 
 @app.command("scale")
