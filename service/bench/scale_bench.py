@@ -202,7 +202,8 @@ def _in_child(target: Any, *args: Any, isolate: bool = True) -> dict[str, Any]:
 def run_scale_bench(sizes: list[int], d: int, frames_per_chunk: int, region_length: int,
                     noise: float, n_queries: int, n_single: int, batch: int, exact_frames: int,
                     trainer: str, out: Path, work_dir: Path | None = None,
-                    figure: Path | None = None, isolate: bool = True) -> dict[str, Any]:  # fmt: skip
+                    figure: Path | None = None, isolate: bool = True,
+                    preset: str = "ridge") -> dict[str, Any]:  # fmt: skip
     points = []
     for n in sizes:
         with tempfile.TemporaryDirectory(prefix="gridplace-scale-", dir=work_dir) as tmp:
@@ -212,7 +213,7 @@ def run_scale_bench(sizes: list[int], d: int, frames_per_chunk: int, region_leng
                 start = time.perf_counter()
                 write_route(route, n, d, region_length=region_length, seed=0)
                 gen_s = time.perf_counter() - start
-            params = {"trainer": trainer, "n_patterns": 2, "rho": 0.5,
+            params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": 2, "rho": 0.5,
                       "n_chunks": max(1, n // frames_per_chunk), "n_jobs": -1}  # fmt: skip
             with console.status(f"N={n:,}: training {params['n_chunks']} chunks on all cores…"):
                 train = _in_child(_train_child, route, registry, params, isolate=isolate)

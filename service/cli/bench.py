@@ -51,6 +51,9 @@ def bench_serve(
     trainer: Annotated[str, typer.Option()] = "ridge",
     patterns: Annotated[int, typer.Option(help="k")] = 2,
     chunks: Annotated[int, typer.Option(help="n_chunks")] = 1,
+    preset: Annotated[str, typer.Option(
+        help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
+             "code with the ridge trainer)")] = "ridge",
     compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-serve.json"),
 ) -> None:
@@ -58,7 +61,8 @@ def bench_serve(
     micro-batched and not, beside the in-process fast path and reference decoder."""
     from service.bench.serve_bench import run_serve_bench
 
-    params = {"trainer": trainer, "n_patterns": str(patterns), "n_chunks": str(chunks)}
+    params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns),
+              "n_chunks": str(chunks)}  # fmt: skip
     run_serve_bench(n_frames, single, batch_queries, batch_size, params, out, compare)
 
 
@@ -73,6 +77,9 @@ def bench_grpc(
     trainer: Annotated[str, typer.Option()] = "ridge",
     patterns: Annotated[int, typer.Option(help="k")] = 2,
     window: Annotated[int, typer.Option(help="frames in flight per stream")] = 16,
+    preset: Annotated[str, typer.Option(
+        help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
+             "code with the ridge trainer)")] = "ridge",
     compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
     floor: Annotated[bool, typer.Option(
         help="also measure the streams against a server that does no work (the gRPC floor)")] = True,
@@ -85,7 +92,7 @@ def bench_grpc(
     filtering does to precision."""
     from service.bench.grpc_bench import run_grpc_bench
 
-    params = {"trainer": trainer, "n_patterns": str(patterns)}
+    params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns)}
     waits = [float(w) for w in wait_grid.split(",") if w.strip()]
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
                    window, compare, waits or None, floor, grid_frames)  # fmt: skip
@@ -103,6 +110,9 @@ def bench_scale(
     batch: Annotated[int, typer.Option(help="queries per batch call")] = 2000,
     exact_frames: Annotated[int, typer.Option(help="frames exact NN is measured on")] = 100_000,
     trainer: Annotated[str, typer.Option()] = "ridge",
+    preset: Annotated[str, typer.Option(
+        help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
+             "code with the ridge trainer)")] = "ridge",
     work_dir: Annotated[Path | None, typer.Option(help="where the route files go (temporary)")] = None,
     figure: Annotated[Path | None, typer.Option(help="PNG of query time against N")] = Path("query-time.png"),
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale.json"),
@@ -113,7 +123,7 @@ def bench_scale(
 
     run_scale_bench([int(s) for s in sizes.split(",")], n_features, frames_per_chunk, region_length,
                     query_noise, queries, single, batch, exact_frames, trainer, out, work_dir,
-                    figure)  # fmt: skip
+                    figure, preset=preset)  # fmt: skip
 
 
 @app.command("growth")
