@@ -23,7 +23,7 @@ N, D = 240, 32
 def ctx(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServiceContext, np.ndarray]]:
     data_dir: Path = tmp_path_factory.mktemp("streams")
     route = smooth_route(N, D, query_noise=0.3, seed=2)  # SYNTHETIC
-    params = {"trainer": "ridge", "n_chunks": 3}
+    params = {"encoder_preset": "ridge", "n_chunks": 3}  # a weak raw model: the filter helps
     model = build_model(ModelParams.parse(**params)).fit(route.reference)
     registry = Registry(data_dir)
     registry.publish("chunked", model, params=params, extractor=None, metrics={})
