@@ -42,6 +42,7 @@ Precision = Literal["float32", "float64"]
 _U32 = 2.0**-24  # unit roundoff of float32
 _SLACK = 1e-12  # relative slack for float64 rounding of the reference itself
 _F32_MAX = float(np.finfo(np.float32).max)
+_BLOCK_SCORES = 1 << 22  # (query, chunk, digit, class) scores decoded at once: 32 MB float64
 
 
 def _kappa(n: int) -> float:
@@ -251,7 +252,18 @@ class ServingPlan:
 
     # -- localize -------------------------------------------------------------------
     def decode(self, Q: np.ndarray, precision: Precision = "float32") -> Decoded:
-        """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path)."""
+        """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path), in
+        row blocks whose score arrays stay within :data:`_BLOCK_SCORES` entries (a model with
+        one class per frame has ``N`` scores per query)."""
+        rows = max(1, _BLOCK_SCORES // max(1, self.top * self.k * self.width))
+        if Q.shape[0] > rows:
+            parts = [self._decode_block(Q[s : s + rows], precision)
+                     for s in range(0, Q.shape[0], rows)]  # fmt: skip
+            return Decoded(*(np.concatenate([getattr(p, f) for p in parts])
+                             for f in ("index", "chunk", "log_score", "rescored")))  # fmt: skip
+        return self._decode_block(Q, precision)
+
+    def _decode_block(self, Q: np.ndarray, precision: Precision) -> Decoded:
         if precision == "float32" and Q.shape[0] == 1 and self._single is not None:
             one = self._single.decode(self, Q)
             if one is not None:

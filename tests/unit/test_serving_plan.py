@@ -333,3 +333,23 @@ def test_chunked_residue_routes_with_a_shared_projection_decode_exactly(
     loc = model.localize(Q)
     np.testing.assert_array_equal(loc.index, index)
     np.testing.assert_array_equal(loc.chunk, chunk)
+
+
+def test_a_large_batch_is_decoded_in_row_blocks_with_the_same_answers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import service.encoding.serving_plan as sp
+
+    route = smooth_route(400, 16, seed=12)
+    for model in (PhaseEncoder(code="residue", n_patterns=1, trainer="prototype",
+                               n_components=8).fit(route.reference),
+                  ChunkedPlaceEncoder(n_chunks=3, trainer="ridge").fit(route.reference)):  # fmt: skip
+        Q = route.query.astype(np.float64)
+        whole = ServingPlan(model).decode(Q)
+        monkeypatch.setattr(sp, "_BLOCK_SCORES", 3 * 400)  # a few rows per block
+        blocked = ServingPlan(model).decode(Q)
+        monkeypatch.undo()
+        for field in ("index", "chunk"):
+            np.testing.assert_array_equal(getattr(blocked, field), getattr(whole, field))
+        # a last block of one row takes the one-query path: scores agree to float32 rounding
+        np.testing.assert_allclose(blocked.log_score, whole.log_score, rtol=1e-6, atol=1e-9)
