@@ -15,7 +15,7 @@ _MIN_NORM = 1e-12  # a class whose rows cancel out scores 0 rather than NaN
 
 #: Temperature of prototype classifiers when none is given: about what
 #: :func:`service.encoding.calibration.calibrate` fits for a ``k = 2`` residue code (the
-#: ``residue`` preset; the ``robust`` preset, ``k = 1``, names its own, 0.038) on the
+#: ``residue`` preset; the ``robust`` preset, ``k = 1``, names its own, 0.028) on the
 #: tuning half of Nordland (summer reference, winter queries: 0.070 on
 #: patch-normalised frames, 0.066 on CNN descriptors). Scores are cosines, so it is a
 #: property of the score scale and of ``k`` rather than of one route; calibrate a model on
