@@ -208,3 +208,10 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         proc.terminate()
+    # Let the pool's manager thread see its processes gone and close its wake-up pipe now:
+    # left running, it races at interpreter exit with concurrent.futures' own exit hook,
+    # which writes to that pipe (CPython 3.11: "OSError: Bad file descriptor", printed as
+    # an ignored exception on every graceful shutdown that lost the race).
+    manager = getattr(pool, "_executor_manager_thread", None)  # no public API
+    if manager is not None:
+        manager.join(timeout=10.0)
