@@ -2,7 +2,10 @@
 
 Every method is a :class:`QualityMethod`: a name, a family (for the tables and the plot),
 the parameters it was built with and a zero-argument constructor of an unfitted model that
-has ``fit``, ``localize``, ``frame_log_scores`` and ``footprint``.
+has ``fit``, ``localize``, ``frame_log_scores`` and ``footprint``: exact NN, PQ at several
+``m``, Yu et al., exact NN in the projected space of the ``robust`` front-end
+(:mod:`service.harness.projected_nn`) and the gridplace presets with variants of the default
+along its storage axes (:data:`GRIDPLACE_CONFIGS`).
 
 Multi-traversal training (several traversals of the same places, each row labelled with its
 place) goes through :func:`fit_places`: gridplace models take ``places=`` themselves; the
@@ -25,6 +28,7 @@ from service.encoding.base import Localization
 from service.encoding.footprint import Footprint
 from service.encoding.pq import faiss_available
 from service.errors import InvalidParameterError
+from service.harness.projected_nn import ProjectedNN
 
 FAMILIES: tuple[str, ...] = ("exact_nn", "exact_nn_projected", "pq", "yu", "gridplace")
 FAMILY_LABELS = {
@@ -35,11 +39,19 @@ FAMILY_LABELS = {
     "gridplace": "gridplace",
 }
 PQ_SUBQUANTIZERS: tuple[int, ...] = (16, 32, 64)
-# gridplace configurations that exist on every build: the old fast default and the paper's
-GRIDPLACE_BASE: dict[str, dict[str, Any]] = {
-    "ridge": {"trainer": "ridge"},
-    "paper": {"trainer": "logreg", "n_patterns": 2, "rho": 0.5, "C": 4.0},
+# gridplace configurations: the named presets (service.encoding.presets) and variants of the
+# default one along the two axes that set its storage (code ratio Στ/N, projection width)
+GRIDPLACE_CONFIGS: dict[str, dict[str, Any]] = {
+    "paper": {"encoder_preset": "paper"},
+    "ridge": {"encoder_preset": "ridge"},
+    "residue": {"encoder_preset": "residue"},
+    "robust": {"encoder_preset": "robust"},
+    "robust-ratio0.5": {"encoder_preset": "robust", "code_ratio": 0.5},
+    "robust-ratio0.25": {"encoder_preset": "robust", "code_ratio": 0.25},
+    "robust-pca64": {"encoder_preset": "robust", "n_components": 64},
+    "robust-pca256": {"encoder_preset": "robust", "n_components": 256},
 }
+PROJECTED_NN_COMPONENTS: tuple[int, ...] = (64, 128, 256)
 
 
 @dataclass(frozen=True)
@@ -69,12 +81,19 @@ def baseline_methods(
         ]
     out.append(QualityMethod("yu", "yu", lambda: RhythmicEncoder(trainer=yu_trainer),
                              {"n_patterns": 2, "trainer": yu_trainer}))  # fmt: skip
+    robust = ModelParams.parse(encoder_preset="robust")
+    out += [
+        QualityMethod(f"nn-pca{m}", "exact_nn_projected",
+                      lambda m=m: ProjectedNN(m, robust.whiten_power, "float32"),
+                      {"n_components": m, "whiten_power": robust.whiten_power})  # fmt: skip
+        for m in PROJECTED_NN_COMPONENTS
+    ]
     return out
 
 
 def gridplace_methods(names: list[str] | None = None) -> list[QualityMethod]:
-    """The named gridplace configurations (default: all of :data:`GRIDPLACE_BASE`)."""
-    table = {k: ModelParams.parse(**v) for k, v in GRIDPLACE_BASE.items()}
+    """The named gridplace configurations (default: all of :data:`GRIDPLACE_CONFIGS`)."""
+    table = {k: ModelParams.parse(**v) for k, v in GRIDPLACE_CONFIGS.items()}
     chosen = list(table) if names is None else names
     unknown = [n for n in chosen if n not in table]
     if unknown:
@@ -146,7 +165,7 @@ def fit_places(model: Any, X: np.ndarray, places: np.ndarray | None) -> Any:
         return model.fit(X)
     if accepts_places(model):
         return model.fit(X, places=places)
-    if isinstance(model, ExactNN | PQIndex | RhythmicEncoder):
+    if isinstance(model, ExactNN | PQIndex | RhythmicEncoder | ProjectedNN):
         return PlacePooled(model).fit(X, places)
     raise InvalidParameterError(
         f"{type(model).__name__} cannot be fitted on several traversals (no places= in fit)"

@@ -22,7 +22,7 @@ from service.errors import InvalidInputError, InvalidParameterError
 from service.harness.quality_methods import PlacePooled, catalogue, fit_places
 
 N, D = 300, 16
-METHODS = "exact_nn,pq-m16,yu,ridge"
+METHODS = "exact_nn,pq-m16,yu,nn-pca64,ridge,robust"
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,8 @@ def test_every_method_protocol_and_drive_is_reported(report: dict[str, Any]) -> 
     (entry,) = report["sets"]
     assert entry["dataset"]["N"] == N and entry["dataset"]["d"] == D
     cross, multi = entry["protocols"]["cross"], entry["protocols"]["multi"]
-    assert [r["method"] for r in cross["results"]] == ["exact-nn", "pq-m16", "yu", "ridge"]
+    assert [r["method"] for r in cross["results"]] == ["exact-nn", "pq-m16", "yu", "nn-pca64",
+                                                       "ridge", "robust"]  # fmt: skip
     for r in cross["results"]:
         assert set(r["drives"]) == {"A", "B", "all"}
         for d in r["drives"].values():
@@ -80,14 +81,14 @@ def test_every_method_protocol_and_drive_is_reported(report: dict[str, Any]) -> 
     # the whole drive is the query-weighted mean of its halves for single frames
     a, b, whole = (nn["drives"][k]["single"]["5"] for k in ("A", "B", "all"))
     assert whole == pytest.approx((a * 150 + b * 150) / 300)
-    # multi-traversal: baselines pooled per place; gridplace either fits places or says why
+    # multi-traversal: baselines pooled per place, gridplace fitted with places=
     pooled = {r["method"]: r for r in multi["results"]}
-    assert {"exact-nn", "pq-m16", "yu"} <= set(pooled)
+    assert {"exact-nn", "pq-m16", "yu", "nn-pca64"} <= set(pooled)
     assert pooled["exact-nn"]["folds"] == ["train reference+A, test B", "train reference+B, test A"]
     assert pooled["exact-nn"]["drives"]["all"]["n"] == N
     assert pooled["exact-nn"]["actual_bytes"] > nn["actual_bytes"]  # it stores both traversals
-    assert {r["method"] for r in multi["results"]} | {e["method"] for e in multi["errors"]} == {
-        "exact-nn", "pq-m16", "yu", "ridge"}  # fmt: skip
+    assert {r["method"] for r in multi["results"]} == {
+        "exact-nn", "pq-m16", "yu", "nn-pca64", "ridge", "robust"}  # fmt: skip
 
 
 def test_the_frontier_figure_is_a_png(report: dict[str, Any], tmp_path: Path) -> None:
