@@ -52,12 +52,12 @@ def _identical(results: Results, n_frames: int) -> str | None:
 
 
 def _storage(results: Results, n_frames: int) -> str | None:
-    del n_frames
     if "gridplace/identical" not in results or "exact NN/identical" not in results:
         return None
     ours = results["gridplace/identical"]["footprint_bytes"]
     nn = results["exact NN/identical"]["footprint_bytes"]
-    return f"storage: {ours:,} B against exact NN's {nn:,} B ({nn / max(1, ours):.1f}× less)."
+    return (f"storage: {ours:,} B against exact NN's {nn:,} B ({nn / max(1, ours):.1f}× less; "
+            f"{ours / max(1, n_frames):,.0f} B per frame: both grow with the route).")  # fmt: skip
 
 
 def _sequence(results: Results, n_frames: int) -> str | None:
@@ -86,9 +86,10 @@ def verdict(results: Results) -> str | None:
     nbytes = results[keys[2]]["footprint_bytes"] / max(1, results[keys[3]]["footprint_bytes"])
     drive = ""
     if "gridplace/cross-season drive" in results and "exact NN/cross-season drive" in results:
-        ratio = _p(results, "gridplace/cross-season drive") / max(
-            1e-12, _p(results, "exact NN/cross-season drive"))  # fmt: skip
-        drive = f" and {ratio:.0%} as a drive"
+        ours = _p(results, "gridplace/cross-season drive")
+        nn = _p(results, "exact NN/cross-season drive")
+        how = f"{ours / max(1e-12, nn):.0%} of it" if ours < nn else "as much or more"
+        drive = f" and {how} as a drive ({ours:.1%} against {nn:.1%})"
     return (f"in short: gridplace keeps {single:.0%} of exact NN's cross-season precision frame "
             f"by frame{drive}, in {nbytes:.1%} of its storage")  # fmt: skip
 
