@@ -224,10 +224,15 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
-def merge_reports(reports: list[dict[str, Any]]) -> dict[str, Any]:
+def _kept(row: dict[str, Any], keep: set[str] | None) -> bool:
+    return keep is None or row["method"] in keep or row["family"] in keep
+
+
+def merge_reports(reports: list[dict[str, Any]], methods: str = "all") -> dict[str, Any]:
     """Several runs as one report: per descriptor set (by name) and protocol, the methods of
-    every run in order (a method measured twice keeps its later run). Each run's context is
-    kept under ``runs``."""
+    every run in order (a method measured twice keeps its later run; ``methods``, names or
+    families comma-separated, keeps only those). Each run's context is kept under ``runs``."""
+    keep = None if methods == "all" else {m.strip() for m in methods.split(",") if m.strip()}
     if not reports:
         raise InvalidInputError("nothing to merge")
     merged: dict[str, Any] = {**reports[0], "sets": [], "runs": [r["context"] for r in reports]}
@@ -246,8 +251,8 @@ def merge_reports(reports: list[dict[str, Any]]) -> dict[str, Any]:
                 fresh = {r["method"] for r in block["results"] + block["errors"]}
                 into["results"] = [r for r in into["results"] if r["method"] not in fresh]
                 into["errors"] = [e for e in into["errors"] if e["method"] not in fresh]
-                into["results"] += block["results"]
-                into["errors"] += block["errors"]
+                into["results"] += [r for r in block["results"] if _kept(r, keep)]
+                into["errors"] += [e for e in block["errors"] if _kept(e, keep)]
                 add_ratios(into["results"])
     merged["elapsed_seconds"] = sum(r.get("elapsed_seconds", 0.0) for r in reports)
     return merged

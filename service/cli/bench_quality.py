@@ -47,7 +47,8 @@ def bench_quality(
         help="also write the tables as Markdown here")] = None,
     merge: Annotated[list[Path] | None, typer.Option(
         "--merge", help="run nothing: merge these reports (repeatable; a method in several "
-                        "keeps its last run) into --out and --figure")] = None,
+                        "keeps its last run; --methods keeps only those) into --out and --figure",
+    )] = None,
 ) -> None:
     """Precision (±0/2/5/10, single frame and sequence) and storage of exact NN, PQ, Yu et al.
     and gridplace configurations on the same descriptors: reference -> query traversal and
@@ -56,7 +57,7 @@ def bench_quality(
     from service.bench.quality_report import markdown_tables, plot_frontier, print_report
 
     if merge:
-        report = merge_reports([json.loads(p.read_text()) for p in merge])
+        report = merge_reports([json.loads(p.read_text()) for p in merge], methods)
         out.write_text(json.dumps(report, indent=2))
         print_report(report, console)
         console.print(f"wrote {out}")

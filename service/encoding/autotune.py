@@ -29,11 +29,10 @@ from service.encoding.factory import ModelParams, build_model
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import InvalidParameterError
 
-# the small grid searched around the default preset: the two fields that set its storage
-DEFAULT_GRID: dict[str, tuple[Any, ...]] = {
-    "code_ratio": (0.25, 0.5, 1.0),
-    "n_components": (64, 128, 256),
-}
+# the small grids searched: the fields that set each preset's storage (robust has one digit,
+# the whole route, so only its projection width; residue digits also shrink with Στ/N)
+DEFAULT_GRID: dict[str, tuple[Any, ...]] = {"n_components": (64, 128, 256)}
+RESIDUE_GRID: dict[str, tuple[Any, ...]] = {"code_ratio": (0.25, 0.5, 1.0)}
 Progress = Callable[[str, int, int], None]
 
 
@@ -95,10 +94,12 @@ def grid_candidates(
 
 def default_candidates() -> list[Candidate]:
     """The configurations ``gridplace train --budget-bytes/--target-precision`` searches: the
-    ``robust`` preset over :data:`DEFAULT_GRID`, and the small ``ridge`` preset (the paper's
-    ``logreg`` costs minutes per fit, so it is left out)."""
+    ``robust`` preset over :data:`DEFAULT_GRID`, ``residue`` over :data:`RESIDUE_GRID` and the
+    small ``ridge`` preset (the paper's ``logreg`` costs minutes per fit, so it is left out)."""
     robust = grid_candidates({"robust": ModelParams.parse(encoder_preset="robust")})
-    return robust + [Candidate("ridge", ModelParams.parse(encoder_preset="ridge"))]
+    residue = grid_candidates({"residue": ModelParams.parse(encoder_preset="residue")},
+                              RESIDUE_GRID)  # fmt: skip
+    return robust + residue + [Candidate("ridge", ModelParams.parse(encoder_preset="ridge"))]
 
 
 def _fit(params: ModelParams, train: Any, places: np.ndarray | None) -> Any:

@@ -39,15 +39,16 @@ FAMILY_LABELS = {
     "gridplace": "gridplace",
 }
 PQ_SUBQUANTIZERS: tuple[int, ...] = (16, 32, 64)
-# gridplace configurations: the named presets (service.encoding.presets) and variants of the
-# default one along the two axes that set its storage (code ratio Στ/N, projection width)
+# gridplace configurations: the named presets (service.encoding.presets) and variants along
+# the two axes that set their storage: the code ratio Στ/N (residue digits, k = 2; robust's
+# single digit is always the whole route) and the projection width
 GRIDPLACE_CONFIGS: dict[str, dict[str, Any]] = {
     "paper": {"encoder_preset": "paper"},
     "ridge": {"encoder_preset": "ridge"},
     "residue": {"encoder_preset": "residue"},
     "robust": {"encoder_preset": "robust"},
-    "robust-ratio0.5": {"encoder_preset": "robust", "code_ratio": 0.5},
-    "robust-ratio0.25": {"encoder_preset": "robust", "code_ratio": 0.25},
+    "residue-ratio0.5": {"encoder_preset": "residue", "code_ratio": 0.5},
+    "residue-ratio0.25": {"encoder_preset": "residue", "code_ratio": 0.25},
     "robust-pca64": {"encoder_preset": "robust", "n_components": 64},
     "robust-pca256": {"encoder_preset": "robust", "n_components": 256},
 }

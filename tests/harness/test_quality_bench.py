@@ -162,3 +162,8 @@ def test_merged_runs_put_every_method_side_by_side(folder: Path, tmp_path: Path)
     rows = entry["protocols"]["cross"]["results"]
     assert [r["method"] for r in rows] == ["exact-nn", "yu", "ridge"] and len(data["runs"]) == 2
     assert rows[1]["bytes_vs_exact_nn"] == rows[1]["actual_bytes"] / rows[0]["actual_bytes"]
+    res = runner.invoke(app, ["bench", "quality", "--merge", str(outs[0]), "--merge", str(outs[1]),
+                              "--methods", "exact_nn,yu", "--out", str(merged)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    rows = json.loads(merged.read_text())["sets"][0]["protocols"]["cross"]["results"]
+    assert [r["method"] for r in rows] == ["exact-nn", "yu"]
