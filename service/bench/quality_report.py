@@ -73,9 +73,19 @@ def headline_drive(block: dict[str, Any]) -> str:
     return "B" if block["protocol"] == "cross" else "all"
 
 
+def pareto(points: list[tuple[float, float, str]]) -> list[tuple[float, float, str]]:
+    """The points (bytes, precision, name), sorted by bytes, that no smaller point beats."""
+    front: list[tuple[float, float, str]] = []
+    for p in sorted(points):
+        if not front or p[1] > front[-1][1]:
+            front.append(p)
+    return front
+
+
 def plot_frontier(report: dict[str, Any], path: Path) -> Path:
     """Precision at the headline tolerance against actual bytes, one panel per descriptor
-    set × protocol × (single, sequence); every method a point, gridplace labelled."""
+    set × protocol × (single, sequence); every setting a labelled point, each family's
+    precision-vs-bytes frontier a line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -94,10 +104,12 @@ def plot_frontier(report: dict[str, Any], path: Path) -> Path:
         for fam in dict.fromkeys(r["family"] for r in rows):
             pts = sorted((r["actual_bytes"], 100 * r["drives"][drive][kind][tol], r["method"])
                          for r in rows if r["family"] == fam)  # fmt: skip
-            xs, ys = [p[0] for p in pts], [p[1] for p in pts]
             color = COLORS.get(fam, "k")
-            ax.plot(xs, ys, "o-" if len(pts) > 1 else "o", color=color, lw=0.8, ms=5,
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", color=color, ms=5,
                     label=FAMILY_LABELS.get(fam, fam))  # fmt: skip
+            front = pareto(pts)
+            if len(front) > 1:
+                ax.plot([p[0] for p in front], [p[1] for p in front], "-", color=color, lw=0.8)
             for x, y, name in pts:
                 ax.annotate(name, (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
         ds = entry["dataset"]
