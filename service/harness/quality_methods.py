@@ -50,7 +50,7 @@ GRIDPLACE_CONFIGS: dict[str, dict[str, Any]] = {
     "residue-ratio0.5": {"encoder_preset": "residue", "code_ratio": 0.5},
     "residue-ratio0.25": {"encoder_preset": "residue", "code_ratio": 0.25},
     "robust-pca64": {"encoder_preset": "robust", "n_components": 64},
-    "robust-pca256": {"encoder_preset": "robust", "n_components": 256},
+    "robust-pca128": {"encoder_preset": "robust", "n_components": 128},
 }
 PROJECTED_NN_COMPONENTS: tuple[int, ...] = (64, 128, 256)
 
