@@ -57,7 +57,8 @@ def _storage(results: Results, n_frames: int) -> str | None:
     ours = results["gridplace/identical"]["footprint_bytes"]
     nn = results["exact NN/identical"]["footprint_bytes"]
     return (f"storage: {ours:,} B against exact NN's {nn:,} B ({nn / max(1, ours):.1f}× less; "
-            f"{ours / max(1, n_frames):,.0f} B per frame: both grow with the route).")  # fmt: skip
+            f"{ours / max(1, n_frames):,.0f} B per frame at this length, fixed parts included: "
+            "both grow with the route).")  # fmt: skip
 
 
 def _sequence(results: Results, n_frames: int) -> str | None:
@@ -82,16 +83,18 @@ def verdict(results: Results) -> str | None:
             "exact NN/identical")  # fmt: skip
     if not all(k in results for k in keys):
         return None
-    single = _p(results, keys[0]) / max(1e-12, _p(results, keys[1]))
+    ours, nn = _p(results, keys[0]), _p(results, keys[1])
+    single = (f"keeps {ours / max(1e-12, nn):.0%} of exact NN's cross-season precision"
+              if ours < nn else "matches or beats exact NN's cross-season precision")  # fmt: skip
     nbytes = results[keys[2]]["footprint_bytes"] / max(1, results[keys[3]]["footprint_bytes"])
     drive = ""
     if "gridplace/cross-season drive" in results and "exact NN/cross-season drive" in results:
-        ours = _p(results, "gridplace/cross-season drive")
-        nn = _p(results, "exact NN/cross-season drive")
-        how = f"{ours / max(1e-12, nn):.0%} of it" if ours < nn else "as much or more"
-        drive = f" and {how} as a drive ({ours:.1%} against {nn:.1%})"
-    return (f"in short: gridplace keeps {single:.0%} of exact NN's cross-season precision frame "
-            f"by frame{drive}, in {nbytes:.1%} of its storage")  # fmt: skip
+        d_ours = _p(results, "gridplace/cross-season drive")
+        d_nn = _p(results, "exact NN/cross-season drive")
+        how = f"{d_ours / max(1e-12, d_nn):.0%} of it" if d_ours < d_nn else "as much or more"
+        drive = f" and {how} as a drive ({d_ours:.1%} against {d_nn:.1%})"
+    return (f"in short: gridplace {single} frame by frame ({ours:.1%} against {nn:.1%}){drive}, "
+            f"in {nbytes:.1%} of its storage")  # fmt: skip
 
 
 def reading(results: Results, n_frames: int) -> str:
