@@ -15,6 +15,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from service.encoding import ModelParams, load_npy
@@ -90,14 +91,14 @@ def tune(
     with console.status("tuning") as status:
         result = autotune(train, Q, truth, cands, budget_bytes, target_precision, tolerance,
                           progress=lambda name, i, n: status.update(
-                              f"tuning on {where}: {name} ({i + 1}/{n})"))  # fmt: skip
+                              escape(f"tuning on {where}: {name} ({i + 1}/{n})")))  # fmt: skip
     table = Table(title=f"candidates on {where}: precision within ±{tolerance} frames")
     for col in ("candidate", "precision", "actual bytes", "fits", "chosen"):
         table.add_column(col)
     for c in sorted(result.candidates, key=lambda c: c.actual_bytes):
-        table.add_row(c.name, f"{c.precision:.3f}", str(c.actual_bytes),
+        table.add_row(escape(c.name), f"{c.precision:.3f}", str(c.actual_bytes),
                       "yes" if c.within_budget else "no",
                       "←" if c is result.chosen else "")  # fmt: skip
     console.print(table)
-    console.print(f"chose {result.chosen.name}: {result.reason}")
+    console.print(f"chose {escape(result.chosen.name)}: {escape(result.reason)}")
     return result.params, result
