@@ -141,7 +141,13 @@ def markdown_tables(report: dict[str, Any]) -> str:
     """Markdown tables of a report: per descriptor set × protocol, one row per method with
     its bytes and precision at every tolerance, single frame and sequence, per drive."""
     tols = [str(t) for t in report["tolerances"]]
-    lines: list[str] = []
+    lines: list[str] = [
+        "Drives: A = first half of the query traversal (validation), B = second half (test), "
+        "all = both. In (b) A and B are each fold's unseen half (the fold trained on the "
+        "reference plus the other half) and all pools them. "
+        f"Sequence filter: {report['tuned_where']['sequence_filter']}.",
+        "",
+    ]
     for entry in report["sets"]:
         ds = entry["dataset"]
         for block in entry["protocols"].values():
