@@ -153,11 +153,12 @@ def _listening(port: int) -> bool:
 
 @cli_errors
 def demo(
-    out: Annotated[Path, typer.Option(help="where the trained artifact is written")] = Path(
-        "gridplace-data/demo"
-    ),
+    out: Annotated[Path | None, typer.Option(
+        help="where the trained artifact is written (default: DATA_DIR/demo)",
+        show_default=False)] = None,
     trainer: Annotated[str | None, typer.Option(
-        help=f"logreg (the paper's) | svm | ridge | torch (default: {default_trainer()})",
+        help="logreg (the paper's) | svm | ridge | torch | prototype "
+             f"(default: {default_trainer()})",
         show_default=False)] = None,
     patterns: Annotated[int | None, typer.Option(
         "--patterns", "-k", help="number of encoders k (default: the default configuration's)",
@@ -191,6 +192,7 @@ def demo(
         raise InvalidParameterError(f"--extractor must be one of {', '.join(EXTRACTORS)}")
     given = {"trainer": trainer, "n_patterns": patterns, "rho": rho}
     params = ModelParams.parse(**{k: v for k, v in given.items() if v is not None})
+    out = data_dir / "demo" if out is None else out
     path = check_new_artifact_dir(out / f"phase-{params.trainer}-{time.strftime('%Y%m%d-%H%M%S')}")
     data = demo_data(frames, synthetic, extractor, console)
     console.print(
