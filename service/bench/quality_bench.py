@@ -235,7 +235,8 @@ def merge_reports(reports: list[dict[str, Any]], methods: str = "all") -> dict[s
     keep = None if methods == "all" else {m.strip() for m in methods.split(",") if m.strip()}
     if not reports:
         raise InvalidInputError("nothing to merge")
-    merged: dict[str, Any] = {**reports[0], "sets": [], "runs": [r["context"] for r in reports]}
+    runs = [run for r in reports for run in r.get("runs", [r["context"]])]  # merged ones too
+    merged: dict[str, Any] = {**reports[0], "sets": [], "runs": runs}
     by_name: dict[str, dict[str, Any]] = {}
     for rep in reports:
         for entry in rep["sets"]:
