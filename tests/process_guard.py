@@ -50,12 +50,22 @@ def _interpreter_helpers() -> frozenset[int]:
     return frozenset(pids)
 
 
+def _stop_forkserver() -> None:
+    """Stop this process's forkserver now rather than when the interpreter exits (it would
+    otherwise outlive the printed summary by a moment)."""
+    server = getattr(sys.modules.get("multiprocessing.forkserver"), "_forkserver", None)
+    stop = getattr(server, "_stop", None)
+    if callable(stop):
+        stop()
+
+
 @pytest.hookimpl(trylast=True)
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if not session.config.stash.get(_subreaper, False):
         return
     _stop_reusable_pools()
     left = process_tree.live_descendants(GRACE_S, exempt=_interpreter_helpers())
+    _stop_forkserver()
     if not left:
         return
     _leaked[:] = [process_tree.describe(pid) for pid in left]
