@@ -24,6 +24,7 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
+from service.durable import fsync_dir
 from service.encoding.base import PlaceRecognizer
 from service.errors import ArtifactError, ConflictError, InvalidInputError
 
@@ -54,14 +55,6 @@ def sha256_file(path: Path) -> str:
 
 def _fsync_file(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(fd)
     finally:
@@ -154,9 +147,9 @@ def save_model(
         man = tmp / MANIFEST
         man.write_text(json.dumps(manifest, indent=2, sort_keys=True))
         _fsync_file(man)
-        _fsync_dir(tmp)
+        fsync_dir(tmp)
         os.rename(tmp, target)  # atomic on one filesystem; fails if target appeared meanwhile
-        _fsync_dir(target.parent)
+        fsync_dir(target.parent)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -21,6 +21,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+from service.durable import fsync_dir
 from service.imaging.extractors import Extractor
 from service.imaging.files import extract_paths
 
@@ -47,14 +48,6 @@ def _fingerprint(paths: Sequence[Path]) -> str:
     return h.hexdigest()
 
 
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as fh:
@@ -62,7 +55,7 @@ def _write_atomic(path: Path, write: Callable[[BinaryIO], object]) -> None:
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def _chunk_name(start: int) -> str:
@@ -147,4 +140,4 @@ def _assemble(work: Path, out: Path, n: int, d: int, chunk_rows: int) -> None:
     with open(tmp, "rb+") as fh:
         os.fsync(fh.fileno())
     os.replace(tmp, out)
-    _fsync_dir(out.parent)
+    fsync_dir(out.parent)

@@ -133,7 +133,7 @@ def test_failed_save_leaves_nothing_behind(
     def boom(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("service.encoding.artifacts._fsync_dir", boom)
+    monkeypatch.setattr("service.encoding.artifacts.fsync_dir", boom)
     with pytest.raises(OSError):
         save_model(model, tmp_path / "m")
     assert list(tmp_path.iterdir()) == []
