@@ -6,6 +6,7 @@ registry dependency.
 >>> model.predict(queries)                                        # frame indices
 """
 
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, adapt_drive
 from service.encoding.artifacts import (
     check_new_artifact_dir,
     load_model,
@@ -19,8 +20,8 @@ from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.factory import ModelParams, build_model, default_trainer
 from service.encoding.footprint import Footprint
-from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.phases import auto_periods, index_to_labels, labels_to_index
+from service.encoding.pq import PQIndex, faiss_available
 from service.encoding.presets import DEFAULT_PRESET, PRESETS
 from service.encoding.route_checks import check_route
 from service.encoding.validation import check_descriptors
@@ -29,6 +30,8 @@ from service.npyfile import load_npy
 __all__ = [
     "DEFAULT_PRESET",
     "PRESETS",
+    "AdaptationConfig",
+    "AppearanceAdapter",
     "ChunkedPlaceEncoder",
     "ExactNN",
     "Footprint",
@@ -38,6 +41,7 @@ __all__ = [
     "PhaseEncoder",
     "PlaceRecognizer",
     "RhythmicEncoder",
+    "adapt_drive",
     "auto_periods",
     "build_model",
     "calibrate",

@@ -1,0 +1,123 @@
+"""Appearance adaptation: the running statistics, causality, streaming and edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from service.encoding import ModelParams, PhaseEncoder, build_model
+from service.encoding.adaptation import (
+    MIN_SCALE_RATIO,
+    AdaptationConfig,
+    AppearanceAdapter,
+    adapt_drive,
+    route_statistics,
+)
+from service.encoding.synthetic import smooth_route
+from service.errors import InvalidParameterError
+
+finite = st.floats(-100, 100, allow_nan=False, allow_infinity=False, width=32)
+
+
+def _adapter(d: int, alpha: float, seed: int = 0) -> AppearanceAdapter:
+    rng = np.random.default_rng(seed)
+    return AppearanceAdapter(rng.normal(size=d), rng.uniform(0.5, 2.0, size=d),
+                             AdaptationConfig(alpha=alpha))  # fmt: skip
+
+
+def _closed_form(a: AppearanceAdapter, X: np.ndarray) -> np.ndarray:
+    """The adapted rows from the exponentially weighted sums written out: frame t sees the
+    weighted mean and variance of the route's statistics (weight (1−α)^t) and frames < t."""
+    alpha, mu, sigma = a.config.alpha, a.route_mean, a.route_scale
+    out = np.empty_like(X)
+    for t in range(X.shape[0]):
+        w = alpha * (1 - alpha) ** np.arange(t - 1, -1, -1)  # weights of frames 0..t-1
+        mean = (1 - alpha) ** t * mu + w @ X[:t]
+        var = (1 - alpha) ** t * (sigma**2 + (mu - mean) ** 2) + w @ ((X[:t] - mean) ** 2)
+        out[t] = mu + sigma * (X[t] - mean) / np.sqrt(np.maximum(var, (MIN_SCALE_RATIO * sigma) ** 2))
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    X=arrays(np.float64, st.tuples(st.integers(1, 12), st.integers(1, 6)), elements=finite),
+    alpha=st.floats(0.001, 1.0),
+)
+def test_the_running_statistics_are_the_exponentially_weighted_ones(X: np.ndarray, alpha: float) -> None:
+    a = _adapter(X.shape[1], alpha)
+    got = a.transform(X)
+    assert np.allclose(got, _closed_form(_adapter(X.shape[1], alpha), X), rtol=1e-9, atol=1e-9)
+    assert a.frames == X.shape[0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    X=arrays(np.float64, st.tuples(st.integers(2, 16), st.integers(1, 5)), elements=finite),
+    cut=st.integers(0, 16),
+)
+def test_a_drive_adapted_in_pieces_equals_one_call(X: np.ndarray, cut: int) -> None:
+    whole = _adapter(X.shape[1], 0.05).transform(X)
+    a = _adapter(X.shape[1], 0.05)
+    cut = min(cut, X.shape[0])
+    pieces = np.vstack([a.transform(X[:cut]) if cut else np.empty((0, X.shape[1])), a.transform(X[cut:])])
+    assert np.array_equal(whole, pieces)
+
+
+@settings(max_examples=30, deadline=None)
+@given(X=arrays(np.float64, st.tuples(st.integers(2, 10), st.integers(1, 5)), elements=finite))
+def test_it_is_causal_and_starts_from_the_route(X: np.ndarray) -> None:
+    """Frame t's answer depends on frames ≤ t only, and the first frame passes unchanged."""
+    a = _adapter(X.shape[1], 0.1)
+    got = a.transform(X)
+    assert np.allclose(got[0], X[0])
+    changed = X.copy()
+    changed[-1] += 7.0
+    again = _adapter(X.shape[1], 0.1).transform(changed)
+    assert np.array_equal(again[:-1], got[:-1])
+
+
+def test_a_drive_is_standardised_by_its_own_statistics() -> None:
+    """A drive shifted and rescaled column by column ends up z-scored by the model as if it
+    had the route's statistics: the model sees (x − m)/√v."""
+    rng = np.random.default_rng(3)
+    mu, sigma = np.array([0.0, 10.0]), np.array([1.0, 2.0])
+    drive = rng.normal(size=(4000, 2)) * np.array([5.0, 0.1]) + np.array([50.0, -3.0])
+    a = AppearanceAdapter(mu, sigma, AdaptationConfig(alpha=0.02))
+    z = (a.transform(drive)[2000:] - mu) / sigma  # the model's z-score, once the drive is learnt
+    assert np.allclose(z.mean(axis=0), 0.0, atol=0.15)
+    assert np.allclose(z.std(axis=0), 1.0, atol=0.15)
+
+
+def test_reset_forgets_the_drive_and_constant_columns_stay_finite() -> None:
+    a = _adapter(3, 0.2)
+    X = np.tile([[1.0, 5.0, -2.0]], (500, 1))  # a drive whose columns never change
+    out = a.transform(X)
+    assert np.isfinite(out).all()
+    assert np.allclose(out[-1], a.route_mean)  # nothing left to stand out
+    a.reset()
+    assert a.frames == 0 and np.allclose(a.transform(X[:1]), X[:1])
+
+
+def test_models_give_their_route_statistics() -> None:
+    route = smooth_route(200, 16, seed=0)
+    model = build_model(ModelParams()).fit(route.reference)
+    stats = route_statistics(model)
+    assert stats is not None
+    assert np.allclose(stats.mean, route.reference.mean(axis=0), atol=1e-5)
+    chunked = build_model(ModelParams(n_chunks=2)).fit(route.reference)
+    assert route_statistics(chunked) is not None
+    adapted = adapt_drive(model, route.query)
+    assert adapted.shape == route.query.shape and np.allclose(adapted[0], route.query[0], atol=1e-5)
+    bare = PhaseEncoder(n_patterns=2, normalize=False).fit(route.reference)
+    with pytest.raises(InvalidParameterError, match="statistics"):
+        AppearanceAdapter.for_model(bare)
+
+
+def test_rows_of_another_width_are_refused() -> None:
+    with pytest.raises(InvalidParameterError, match="d=3"):
+        _adapter(3, 0.1).transform(np.zeros((2, 4)))
+    with pytest.raises(InvalidParameterError):
+        AppearanceAdapter(np.zeros(2), np.zeros(2))
