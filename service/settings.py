@@ -72,6 +72,15 @@ class Settings(BaseSettings):
         "measured best (`gridplace bench grpc --wait-grid 0,0.5,2`): 0.5 and 2 ms gained 8 "
         "streams no throughput beyond the noise of the rounds and cost a lone caller the wait",
     )
+    stream_adaptation: bool = Field(
+        True, description="gRPC streams adapt each vehicle's frames to the running statistics "
+        "of its earlier frames unless a frame says otherwise (appearance adaptation; measured "
+        "best across seasons on Nordland, see docs/RESULTS)",
+    )
+    adaptation_alpha: float = Field(
+        0.02, gt=0.0, le=1.0,  # service.encoding.adaptation.DEFAULT_ALPHA (a test keeps them equal)
+        description="weight of the newest frame in a vehicle's running statistics",
+    )
     serve_blas_threads: int = Field(
         1, ge=0,
         description="BLAS threads of the serving process (0 = the library's default); one "

@@ -6,11 +6,18 @@ validated and localized exactly as a single ``/localize`` query is (same validat
 and hot-swap semantics); with ``sequence_filter`` the frame's scores over the route update the
 vehicle's recursive Bayes filter (:mod:`service.encoding.sequence`), whose estimate is answered.
 
-A vehicle's filter belongs to one map *version*: when the served version changes (an
-activation or rollback mid-stream), the map changes, the flag is turned off, or the client asks
-for a reset, the filter restarts, so scores of two different models are never mixed. Filters of
-the least recently seen vehicles are dropped beyond ``max_vehicles`` or when the stream's
-filters together would hold more than ``max_filter_bytes``.
+With appearance adaptation (:mod:`service.encoding.adaptation`; on for a frame when it asks,
+or by the stream's default when it does not say) the vehicle's frames are standardised by the
+running statistics of its own earlier frames before they are localized; the answer says
+whether a frame was adapted (a map trained without normalisation has no route statistics to
+adapt to: a frame that asked explicitly is refused, one that did not goes through unadapted).
+
+A vehicle's filter and adapter belong to one map *version*: when the served version changes
+(an activation or rollback mid-stream), the map changes, or the client asks for a reset, they
+restart, so scores of two different models are never mixed; turning the filter flag off
+restarts the filter. Filters (adapters) of the least recently seen vehicles are dropped beyond
+``max_vehicles`` or when the stream's filters (adapters) together would hold more than
+``max_filter_bytes`` (``max_adapter_bytes``).
 """
 
 from __future__ import annotations
@@ -24,12 +31,19 @@ import numpy as np
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
 from service.core.sequences import chunk_of
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, route_statistics
 from service.encoding.sequence import SequenceConfig, SequenceFilter
-from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
+from service.errors import (
+    DimensionMismatchError,
+    EmptyInputError,
+    InvalidInputError,
+    InvalidParameterError,
+)
 
 MAX_VEHICLE_ID = 128
 MAX_VEHICLES_PER_STREAM = 1024
 MAX_FILTER_BYTES_PER_STREAM = 512 * 1024 * 1024  # the filters' posteriors, all vehicles together
+MAX_ADAPTER_BYTES_PER_STREAM = 64 * 1024 * 1024  # the adapters' running statistics, together
 
 
 @dataclass(frozen=True)
@@ -44,6 +58,7 @@ class Frame:
     image: bytes | None = None
     sequence_filter: bool = False
     reset: bool = False
+    adapt: bool | None = None  # appearance adaptation; None: the stream's default
 
 
 @dataclass(frozen=True)
@@ -60,6 +75,7 @@ class FrameAnswer:
     raw_confidence: float
     frames_used: int  # frames the filter combined since its start (1 unfiltered)
     latency_ms: float
+    adapted: bool = False  # standardised by the vehicle's running statistics first
 
 
 @dataclass
@@ -67,6 +83,13 @@ class _Track:
     map: str
     version: int
     filter: SequenceFilter
+
+
+@dataclass
+class _Adapted:
+    map: str
+    version: int
+    adapter: AppearanceAdapter
 
 
 class FleetStream:
@@ -80,18 +103,31 @@ class FleetStream:
         config: SequenceConfig | None = None,
         max_vehicles: int = MAX_VEHICLES_PER_STREAM,
         max_filter_bytes: int = MAX_FILTER_BYTES_PER_STREAM,
+        adaptation: AdaptationConfig | None = None,
+        adapt_by_default: bool = False,
+        max_adapter_bytes: int = MAX_ADAPTER_BYTES_PER_STREAM,
     ) -> None:
         self.service = service
         self.config = config or SequenceConfig()
         self.max_vehicles = max_vehicles
         self.max_filter_bytes = max_filter_bytes
+        self.adaptation = adaptation or AdaptationConfig()
+        self.adapt_by_default = adapt_by_default
+        self.max_adapter_bytes = max_adapter_bytes
         self._tracks: OrderedDict[str, _Track] = OrderedDict()
         self._bytes = 0
+        self._adapters: OrderedDict[str, _Adapted] = OrderedDict()
+        self._adapter_bytes = 0
 
     @property
     def vehicles(self) -> int:
         """Vehicles with filter history in this stream."""
         return len(self._tracks)
+
+    @property
+    def adapted_vehicles(self) -> int:
+        """Vehicles with appearance statistics in this stream."""
+        return len(self._adapters)
 
     def answer(self, frame: Frame) -> FrameAnswer:
         """Localize one frame (raises a :class:`~service.errors.GridplaceError` for a bad one;
@@ -106,7 +142,10 @@ class FleetStream:
         if len(frame.vehicle_id) > MAX_VEHICLE_ID:
             raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
         loaded = self.service.served(frame.map)
-        return loaded, self._query(loaded, frame)
+        Q = self._query(loaded, frame)
+        if self._adapts(frame, loaded):
+            Q = self._adapter(frame, loaded).transform(Q)
+        return loaded, Q
 
     def finish(self, frame: Frame, loaded: LoadedModel, Q: np.ndarray, raw: LocalizeResult,
                start: float) -> FrameAnswer:  # fmt: skip
@@ -124,8 +163,44 @@ class FleetStream:
         return FrameAnswer(
             frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
             frame.sequence_filter, raw_index, raw_conf, used,
-            (time.perf_counter() - start) * 1000.0,
+            (time.perf_counter() - start) * 1000.0, self._adapts(frame, loaded),
         )  # fmt: skip
+
+    def _adapts(self, frame: Frame, loaded: LoadedModel) -> bool:
+        """Whether ``frame`` is adapted on ``loaded`` (refused when it asks and cannot be)."""
+        wanted = self.adapt_by_default if frame.adapt is None else frame.adapt
+        if not wanted:
+            return False
+        if route_statistics(loaded.model) is not None:
+            return True
+        if frame.adapt:
+            raise InvalidParameterError(
+                f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
+                "and keeps no route statistics to adapt to; send the frame without adaptation"
+            )
+        return False
+
+    def _adapter(self, frame: Frame, loaded: LoadedModel) -> AppearanceAdapter:
+        entry = self._adapters.get(frame.vehicle_id)
+        if (entry is None or frame.reset or entry.map != loaded.map
+                or entry.version != loaded.version):  # fmt: skip
+            self._forget_adapter(frame.vehicle_id)
+            entry = _Adapted(loaded.map, loaded.version,
+                             AppearanceAdapter.for_model(loaded.model, self.adaptation))  # fmt: skip
+            self._adapters[frame.vehicle_id] = entry
+            self._adapter_bytes += entry.adapter.nbytes
+        self._adapters.move_to_end(frame.vehicle_id)
+        while len(self._adapters) > 1 and (
+            len(self._adapters) > self.max_vehicles or self._adapter_bytes > self.max_adapter_bytes
+        ):
+            _, old = self._adapters.popitem(last=False)  # the least recently seen vehicle
+            self._adapter_bytes -= old.adapter.nbytes
+        return entry.adapter
+
+    def _forget_adapter(self, vehicle_id: str) -> None:
+        entry = self._adapters.pop(vehicle_id, None)
+        if entry is not None:
+            self._adapter_bytes -= entry.adapter.nbytes
 
     def _query(self, loaded: LoadedModel, frame: Frame) -> np.ndarray:
         if frame.descriptor is not None and frame.image is not None:

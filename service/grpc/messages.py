@@ -49,7 +49,11 @@ def frame(request: pb.StreamRequest) -> Frame:
         image=request.image if which == "image" else None,
         sequence_filter=request.sequence_filter,
         reset=request.reset_sequence,
+        adapt=_ADAPT.get(request.adaptation),
     )
+
+
+_ADAPT: dict[int, bool] = {pb.ADAPTATION_ON: True, pb.ADAPTATION_OFF: False}  # else: default
 
 
 def stream_response(a: FrameAnswer) -> pb.StreamResponse:
@@ -57,7 +61,7 @@ def stream_response(a: FrameAnswer) -> pb.StreamResponse:
         vehicle_id=a.vehicle_id, sequence=a.sequence, map=a.map, version=a.version,
         index=a.index, chunk=a.chunk, confidence=a.confidence, filtered=a.filtered,
         raw_index=a.raw_index, raw_confidence=a.raw_confidence, frames_used=a.frames_used,
-        latency_ms=a.latency_ms,
+        latency_ms=a.latency_ms, adapted=a.adapted,
     )  # fmt: skip
 
 

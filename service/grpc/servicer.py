@@ -33,6 +33,7 @@ from service.api.auth import check_admin
 from service.core.batching import MAX_BATCHED_BYTES
 from service.core.context import ServiceContext
 from service.core.streams import FleetStream
+from service.encoding.adaptation import AdaptationConfig
 from service.encoding.sequence import SequenceConfig
 from service.errors import EmptyInputError, GridplaceError, PayloadTooLargeError
 from service.grpc import messages
@@ -148,7 +149,10 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
     async def LocalizeStream(
         self, request_iterator: AsyncIterator[pb.StreamRequest], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[pb.StreamResponse]:
-        stream = FleetStream(self.service, self.sequence)
+        settings = self.ctx.settings
+        stream = FleetStream(self.service, self.sequence,
+                             adaptation=AdaptationConfig(alpha=settings.adaptation_alpha),
+                             adapt_by_default=settings.stream_adaptation)  # fmt: skip
         batcher = self.ctx.batcher
         if batcher is None:
             async for request in request_iterator:

@@ -10,8 +10,9 @@ from collections.abc import AsyncIterator, Sequence
 import grpc
 import numpy as np
 import pytest
-from grpc_helpers import D, N, Served, fit, publish
+from grpc_helpers import D, N, Served, publish
 
+from service.encoding.adaptation import adapt_drive
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.synthetic import smooth_route
 from service.grpc.gen import localization_pb2 as pb
@@ -55,11 +56,20 @@ def test_concurrent_vehicles_get_every_answer_in_order(served: Served) -> None:
                                          descriptor=f32(served.query[r]))
                         for i, r in enumerate(rows)])  # fmt: skip
     answers = run(served, *batches)
+    model = Registry(served.data_dir).load_model("route", 1)
     for sent, got, rows in zip(batches, answers, frames, strict=True):
         assert [(r.vehicle_id, r.sequence) for r in got] == [(q.vehicle_id, q.sequence) for q in sent]
         assert not any(r.HasField("error") for r in got)
-        assert [r.index for r in got] == served.oracle[rows].tolist()
-        assert all(r.version == 1 and not r.filtered and r.raw_index == r.index for r in got)
+        for parity in (0, 1):  # each vehicle's frames adapted to its own earlier frames
+            assert [r.index for r in got[parity::2]] == drive_oracle(model, served.query, rows[parity::2]).tolist()
+        assert all(r.version == 1 and not r.filtered and r.raw_index == r.index and r.adapted
+                   for r in got)  # fmt: skip
+
+
+def drive_oracle(model: object, query: np.ndarray, rows: Sequence[int]) -> np.ndarray:
+    """What ``model`` answers in-process for ``query[rows]`` as one adapted drive."""
+    Q = query[list(rows)].astype(np.float32).astype(np.float64)
+    return model.localize(adapt_drive(model, Q)).index  # type: ignore[attr-defined]
 
 
 def test_a_bad_message_is_answered_and_the_stream_goes_on(served: Served) -> None:
@@ -156,7 +166,24 @@ def test_a_new_version_mid_stream_keeps_the_stream_and_says_so(served: Served) -
     assert not any(r.HasField("error") for r in got)
     first_v2 = versions.index(2)
     assert got[first_v2].frames_used == 1 and got[first_v2 - 1].frames_used == first_v2  # restarted
-    # v2 (the route reversed) answers every frame after the swap exactly as its artifact does
-    oracle_v2 = fit(served.reference[::-1].copy()).localize(served.query).index
-    assert all(r.raw_index == oracle_v2[r.sequence % N] for r in got[first_v2:])
-    assert all(r.raw_index == served.oracle[r.sequence % N] for r in got[:first_v2])
+    # each version answers exactly as its artifact does, the vehicle's appearance statistics
+    # restarting with v2 (the route reversed) like its filter
+    registry = Registry(served.data_dir)
+    seq = [r.sequence % N for r in got]
+    v1 = drive_oracle(registry.load_model("swap", 1), served.query, seq[:first_v2])
+    v2 = drive_oracle(registry.load_model("swap", 2), served.query, seq[first_v2:])
+    assert [r.raw_index for r in got] == v1.tolist() + v2.tolist()
+    assert all(r.adapted for r in got)
+
+
+def test_frames_may_turn_adaptation_off(served: Served) -> None:
+    rows = list(range(40, 100))
+    items = [pb.StreamRequest(vehicle_id="plain", sequence=i, map="route", descriptor=f32(served.query[r]),
+                              adaptation=pb.ADAPTATION_OFF if i % 2 else pb.ADAPTATION_ON)
+             for i, r in enumerate(rows)]  # fmt: skip
+    (got,) = run(served, items)
+    model = Registry(served.data_dir).load_model("route", 1)
+    assert [r.adapted for r in got] == [i % 2 == 0 for i in range(len(rows))]
+    assert [r.index for r in got[1::2]] == served.oracle[rows[1::2]].tolist()  # as sent
+    # the adapted frames form the vehicle's drive: the others neither use nor move its statistics
+    assert [r.index for r in got[0::2]] == drive_oracle(model, served.query, rows[0::2]).tolist()

@@ -10,9 +10,10 @@ import pytest
 
 from service.core.context import ServiceContext, build_context
 from service.core.streams import FleetStream, Frame
-from service.encoding import ModelParams, build_model
+from service.encoding import ModelParams, PhaseEncoder, build_model
+from service.encoding.adaptation import AdaptationConfig, adapt_drive
 from service.encoding.synthetic import smooth_route
-from service.errors import DimensionMismatchError, InvalidInputError
+from service.errors import DimensionMismatchError, InvalidInputError, InvalidParameterError
 from service.registry import Registry
 from service.settings import Settings
 
@@ -28,6 +29,9 @@ def ctx(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServiceConte
     model = build_model(ModelParams.parse(**params)).fit(route.reference)
     registry = Registry(data_dir)
     registry.publish("chunked", model, params=params, extractor=None, metrics={})
+    bare = PhaseEncoder(n_patterns=2, trainer="ridge", normalize=False).fit(route.reference)
+    registry.publish("bare", bare, params={"trainer": "ridge", "normalize": False},
+                     extractor=None, metrics={})  # fmt: skip
     context = build_context(Settings(data_dir=data_dir), registry=registry)
     try:
         yield context, route.query
@@ -90,3 +94,49 @@ def test_filters_are_dropped_least_recent_first_beyond_the_byte_budget(
     assert stream.answer(frame(Q, 11, "c", sequence_filter=True)).frames_used == 2
     stream.answer(frame(Q, 12, "c"))  # the flag off: c's filter is released
     assert stream.vehicles == 1 and stream.filter_bytes == per_vehicle
+
+
+def test_each_vehicle_is_adapted_to_its_own_drive(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    model = context.service.served("chunked").model
+    stream = FleetStream(context.service, adaptation=AdaptationConfig(alpha=0.1),
+                         adapt_by_default=True)  # fmt: skip
+    rows = {"a": list(range(40)), "b": list(range(200, 160, -1))}
+    got: dict[str, list[int]] = {"a": [], "b": []}
+    for i in range(40):  # the two vehicles interleaved
+        for v in ("a", "b"):
+            answer = stream.answer(frame(Q, rows[v][i], v))
+            assert answer.adapted and not answer.filtered
+            got[v].append(answer.index)
+    for v in ("a", "b"):
+        drive = Q[rows[v]].astype(np.float32).astype(np.float64)
+        expected = model.localize(adapt_drive(model, drive, AdaptationConfig(alpha=0.1))).index
+        assert got[v] == expected.tolist()
+    assert stream.adapted_vehicles == 2 and stream.vehicles == 0  # no filter was asked for
+    # a frame may opt out, and a reset restarts the vehicle's statistics
+    off = stream.answer(frame(Q, 7, "a", adapt=False))
+    assert not off.adapted and off.index == int(model.localize(Q[7:8].astype(np.float32)).index[0])
+    fresh = stream.answer(frame(Q, 7, "a", reset=True))
+    assert fresh.adapted and fresh.index == off.index  # the first frame of a drive is unchanged
+
+
+def test_a_map_without_route_statistics_is_not_adapted(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    stream = FleetStream(context.service, adapt_by_default=True)
+    row = Q[3].astype("<f4").tobytes()
+    assert not stream.answer(Frame("v", 1, "bare", descriptor=row)).adapted
+    with pytest.raises(InvalidParameterError, match="no route statistics"):
+        stream.answer(Frame("v", 2, "bare", descriptor=row, adapt=True))
+    assert stream.adapted_vehicles == 0
+
+
+def test_adapters_are_dropped_least_recent_first(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * 16 * D)
+    for vehicle in ("a", "b", "c"):  # one adapter holds a float64 mean and variance per column
+        stream.answer(frame(Q, 10, vehicle))
+    assert stream.adapted_vehicles == 2
+    limited = FleetStream(context.service, adapt_by_default=True, max_vehicles=1)
+    for vehicle in ("a", "b"):
+        limited.answer(frame(Q, 10, vehicle))
+    assert limited.adapted_vehicles == 1

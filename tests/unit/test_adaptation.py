@@ -121,3 +121,10 @@ def test_rows_of_another_width_are_refused() -> None:
         _adapter(3, 0.1).transform(np.zeros((2, 4)))
     with pytest.raises(InvalidParameterError):
         AppearanceAdapter(np.zeros(2), np.zeros(2))
+
+
+def test_the_server_setting_defaults_to_the_library_default() -> None:
+    from service.encoding.adaptation import DEFAULT_ALPHA
+    from service.settings import Settings
+
+    assert Settings().adaptation_alpha == DEFAULT_ALPHA and Settings().stream_adaptation

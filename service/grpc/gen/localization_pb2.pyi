@@ -2,12 +2,22 @@ import datetime
 
 from google.protobuf import timestamp_pb2 as _timestamp_pb2
 from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 from google.protobuf import descriptor as _descriptor
 from google.protobuf import message as _message
 from collections.abc import Iterable as _Iterable, Mapping as _Mapping
 from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
+
+class Adaptation(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    ADAPTATION_DEFAULT: _ClassVar[Adaptation]
+    ADAPTATION_ON: _ClassVar[Adaptation]
+    ADAPTATION_OFF: _ClassVar[Adaptation]
+ADAPTATION_DEFAULT: Adaptation
+ADAPTATION_ON: Adaptation
+ADAPTATION_OFF: Adaptation
 
 class LocalizeRequest(_message.Message):
     __slots__ = ("map", "descriptor", "image", "dimension")
@@ -44,7 +54,7 @@ class LocalizeResponse(_message.Message):
     def __init__(self, map: _Optional[str] = ..., version: _Optional[int] = ..., matches: _Optional[_Iterable[_Union[Match, _Mapping]]] = ..., latency_ms: _Optional[float] = ...) -> None: ...
 
 class StreamRequest(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence")
+    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -52,6 +62,7 @@ class StreamRequest(_message.Message):
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FILTER_FIELD_NUMBER: _ClassVar[int]
     RESET_SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    ADAPTATION_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -59,7 +70,8 @@ class StreamRequest(_message.Message):
     image: bytes
     sequence_filter: bool
     reset_sequence: bool
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ...) -> None: ...
+    adaptation: Adaptation
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ..., adaptation: _Optional[_Union[Adaptation, str]] = ...) -> None: ...
 
 class Error(_message.Message):
     __slots__ = ("code", "status", "message")
@@ -72,7 +84,7 @@ class Error(_message.Message):
     def __init__(self, code: _Optional[str] = ..., status: _Optional[str] = ..., message: _Optional[str] = ...) -> None: ...
 
 class StreamResponse(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error")
+    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error", "adapted")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -86,6 +98,7 @@ class StreamResponse(_message.Message):
     FRAMES_USED_FIELD_NUMBER: _ClassVar[int]
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
     ERROR_FIELD_NUMBER: _ClassVar[int]
+    ADAPTED_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -99,7 +112,8 @@ class StreamResponse(_message.Message):
     frames_used: int
     latency_ms: float
     error: Error
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ...) -> None: ...
+    adapted: bool
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ..., adapted: _Optional[bool] = ...) -> None: ...
 
 class ListMapsRequest(_message.Message):
     __slots__ = ()
