@@ -72,10 +72,10 @@ class Settings(BaseSettings):
         "measured best (`gridplace bench grpc --wait-grid 0,0.5,2`): 0.5 and 2 ms gained 8 "
         "streams no throughput beyond the noise of the rounds and cost a lone caller the wait",
     )
-    stream_adaptation: bool = Field(
-        True, description="gRPC streams adapt each vehicle's frames to the running statistics "
-        "of its earlier frames unless a frame says otherwise (appearance adaptation; measured "
-        "best across seasons on Nordland, see docs/RESULTS)",
+    drive_adaptation: bool = Field(
+        True, description="drives (gRPC streams, /v1/localize/sequence) adapt each vehicle's "
+        "frames to the running statistics of its earlier frames unless a request says "
+        "otherwise (appearance adaptation; measured best across seasons, see docs/RESULTS)",
     )
     adaptation_alpha: float = Field(
         0.02, gt=0.0, le=1.0,  # service.encoding.adaptation.DEFAULT_ALPHA (a test keeps them equal)

@@ -24,7 +24,7 @@ from service.wire import SequenceFilterOptions, SequenceLocalization, SequenceLo
 
 router = APIRouter(prefix="/v1", tags=["localize"])
 
-_TRANSPORT_PARAMS = frozenset({"map", "d"})
+_TRANSPORT_PARAMS = frozenset({"map", "d", "adaptation"})
 FILTER_PARAMS = tuple(SequenceFilterOptions.model_fields)
 
 
@@ -33,7 +33,7 @@ def sequence_localization(r: SequenceResult) -> SequenceLocalization:
         map=r.map, version=r.version, n=len(r), index=r.index.tolist(), chunk=r.chunk.tolist(),
         confidence=r.confidence.tolist(), speed=r.speed.tolist(), raw_index=r.raw_index.tolist(),
         raw_confidence=r.raw_confidence.tolist(), filter=r.config.model_dump(),
-        latency_ms=r.latency_ms,
+        latency_ms=r.latency_ms, adapted=r.adapted,
     )  # fmt: skip
 
 
@@ -92,6 +92,9 @@ async def localize_sequence(
         MapParam, Header(alias="X-Gridplace-Map", description="or the map here")
     ] = None,
     d_h: Annotated[DimParam, Header(alias="X-Gridplace-Dim", description="or d here")] = None,
+    adaptation: Annotated[bool | None, Query(
+        description="appearance adaptation (binary and form bodies; JSON: the body's field); "
+                    "unset: the server's default")] = None,
 ) -> SequenceLocalization:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64", "filter"?}``, a
     multipart form (``map`` + ``images`` files), or an ``application/octet-stream`` body of
@@ -103,36 +106,44 @@ async def localize_sequence(
         name = binary_map(map_q, map_h, "sequences")
         body = await request.body()
         config = _config(query)
-        result = await run_in_threadpool(localizer.localize_bytes, name, body, d_q or d_h, config)
+        result = await run_in_threadpool(localizer.localize_bytes, name, body, d_q or d_h, config,
+                                         adaptation)  # fmt: skip
     elif ctype.startswith("multipart/form-data"):
         name, images = await _form(request)
         config = _config(query)
-        result = await run_in_threadpool(localizer.localize_images, name, images, config)
+        result = await run_in_threadpool(localizer.localize_images, name, images, config,
+                                         adaptation)  # fmt: skip
     else:
         req = SequenceLocalizeRequest.model_validate_json(await _json_body(request))
         if req.filter is not None and query:
             raise InvalidInputError(
                 "give the filter options in the body's 'filter' or in the query, not both"
             )
+        if req.adaptation is not None and adaptation is not None:
+            raise InvalidInputError(
+                "give adaptation in the body or in the query, not both"
+            )
         config = _config(req.filter if req.filter is not None else query)
-        result = await run_in_threadpool(_localize_drive, localizer, req, config)
+        adapt = req.adaptation if req.adaptation is not None else adaptation
+        result = await run_in_threadpool(_localize_drive, localizer, req, config, adapt)
     return sequence_localization(result)
 
 
 def _localize_drive(
-    localizer: SequenceLocalizer, req: SequenceLocalizeRequest, config: SequenceConfig
-) -> SequenceResult:
+    localizer: SequenceLocalizer, req: SequenceLocalizeRequest, config: SequenceConfig,
+    adapt: bool | None,
+) -> SequenceResult:  # fmt: skip
     if req.images_b64 is not None:
         blobs = [
             (f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)
         ]
-        return localizer.localize_images(req.map, blobs, config)
+        return localizer.localize_images(req.map, blobs, config, adapt)
     if req.descriptors_b64 is not None:
         data = _b64(req.descriptors_b64, "descriptors_b64")
-        return localizer.localize_bytes(req.map, data, None, config)
+        return localizer.localize_bytes(req.map, data, None, config, adapt)
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")
     if len({len(row) for row in req.descriptors}) != 1:
         raise InvalidInputError("descriptors rows have different lengths")
-    return localizer.localize(req.map, req.descriptors, config)
+    return localizer.localize(req.map, req.descriptors, config, adapt)

@@ -93,9 +93,11 @@ class AsyncGridplaceClient:
     async def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
         return await self._send(calls.localize_images(map, images))
 
-    async def localize_sequence(self, map: str, descriptors: ArrayLike,
+    async def localize_sequence(self, map: str, descriptors: ArrayLike, *,
+                                adaptation: bool | None = None,
                                 **filter_params: Any) -> SequenceLocalization:  # fmt: skip
-        return await self._send(calls.localize_sequence(map, descriptors, filter_params))
+        return await self._send(calls.localize_sequence(map, descriptors, filter_params,
+                                                        adaptation))  # fmt: skip
 
     async def upload_route(self, map: str, route: RouteSource | Sequence[RouteSource],
                            options: TrainingOptions | None = None, *,

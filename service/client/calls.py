@@ -170,15 +170,19 @@ def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalizat
 
 
 def localize_sequence(
-    map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any]
-) -> Call[SequenceLocalization]:
+    map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any],
+    adaptation: bool | None = None,
+) -> Call[SequenceLocalization]:  # fmt: skip
     """Rows in driving order, one binary float32 request; filter options are checked against
-    their static bounds before anything is sent (the server checks the rest)."""
+    their static bounds before anything is sent (the server checks the rest). ``adaptation``
+    unset: the server's default."""
     X = as_float32_rows(descriptors, "descriptors")
     try:
         options = SequenceFilterOptions(**filter_params).given()
     except ValidationError as exc:
         raise InvalidParameterError(f"invalid sequence filter options: {_messages(exc)}") from exc
+    if adaptation is not None:
+        options["adaptation"] = adaptation
     params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}
     return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization), kwargs={
         "params": {**params, "map": map_name, "d": X.shape[1]}, "content": X.tobytes(),

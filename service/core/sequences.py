@@ -4,7 +4,9 @@ REST (``POST /v1/localize/sequence``) calls :class:`SequenceLocalizer`; the gRPC
 frame by frame through :mod:`service.core.streams`. Both validate queries with the one
 :class:`~service.core.localization.LocalizationService`, record its metrics, and run the filter
 of :mod:`service.encoding.sequence` on the model's frame scores. A request is one drive: the
-filter starts from a uniform belief and is not kept after the answer.
+filter starts from a uniform belief, appearance adaptation (:mod:`service.encoding.adaptation`,
+``adapt``; the server's ``GRIDPLACE_DRIVE_ADAPTATION`` when not given) from the route's
+statistics, and neither is kept after the answer.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ import numpy as np
 from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
 from service.encoding import check_descriptors
+from service.encoding.adaptation import AdaptationConfig, adapt_drive, route_statistics
 from service.encoding.sequence import SequenceConfig, sequence_localize
-from service.errors import EmptyInputError, InvalidInputError
+from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
 
 MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
 MAX_SEQUENCE_WORK = 2_000_000_000  # query frames × route frames per request (filter time)
@@ -40,6 +43,7 @@ class SequenceResult:
     raw_confidence: np.ndarray  # float64
     config: SequenceConfig
     latency_ms: float
+    adapted: bool = False  # the drive was standardised by its own running statistics
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -61,34 +65,54 @@ class SequenceLocalizer:
     def __init__(self, service: LocalizationService) -> None:
         self.service = service
 
-    def localize(self, name: str, X: Any, config: SequenceConfig) -> SequenceResult:
+    def localize(self, name: str, X: Any, config: SequenceConfig,
+                 adapt: bool | None = None) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
-        return self.run(loaded, Q, config, start, "descriptor")
+        return self.run(loaded, Q, config, start, "descriptor", adapt)
 
     def localize_bytes(
-        self, name: str, data: bytes, n_features: int | None, config: SequenceConfig
-    ) -> SequenceResult:
+        self, name: str, data: bytes, n_features: int | None, config: SequenceConfig,
+        adapt: bool | None = None,
+    ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = self.service.query_bytes(loaded, data, n_features)
-        return self.run(loaded, Q, config, start, "binary")
+        return self.run(loaded, Q, config, start, "binary", adapt)
 
     def localize_images(
-        self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig
-    ) -> SequenceResult:
+        self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig,
+        adapt: bool | None = None,
+    ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         if not images:
             raise EmptyInputError("no image was sent")
         if len(images) > MAX_BATCH_IMAGES:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.service.served(name)
-        return self.run(loaded, self.service.query_images(loaded, images), config, start, "image")
+        Q = self.service.query_images(loaded, images)
+        return self.run(loaded, Q, config, start, "image", adapt)
+
+    def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
+        """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
+        statistics is refused; the default then goes without)."""
+        wanted = self.service.settings.drive_adaptation if adapt is None else adapt
+        if not wanted:
+            return False
+        if route_statistics(loaded.model) is not None:
+            return True
+        if adapt:
+            raise InvalidParameterError(
+                f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
+                "and keeps no route statistics to adapt to; send adaptation=false"
+            )
+        return False
 
     def run(
-        self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str
-    ) -> SequenceResult:
+        self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,
+        adapt: bool | None = None,
+    ) -> SequenceResult:  # fmt: skip
         """Filter validated queries ``Q`` (rows in driving order) on ``loaded``."""
         limit = min(MAX_SEQUENCE_FRAMES, max(1, MAX_SEQUENCE_WORK // loaded.n_frames))
         if Q.shape[0] > limit:
@@ -99,6 +123,10 @@ class SequenceLocalizer:
                 limit=limit,
                 got=int(Q.shape[0]),
             )
+        adapted = self.adapts(loaded, adapt)
+        if adapted:
+            alpha = self.service.settings.adaptation_alpha
+            Q = adapt_drive(loaded.model, Q, AdaptationConfig(alpha=alpha))
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
         track = sequence_localize(loaded.model, Q, config)
         return SequenceResult(
@@ -112,4 +140,5 @@ class SequenceLocalizer:
             raw.confidence,
             config,
             (time.perf_counter() - start) * 1000.0,
+            adapted,
         )

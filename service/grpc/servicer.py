@@ -152,7 +152,7 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         settings = self.ctx.settings
         stream = FleetStream(self.service, self.sequence,
                              adaptation=AdaptationConfig(alpha=settings.adaptation_alpha),
-                             adapt_by_default=settings.stream_adaptation)  # fmt: skip
+                             adapt_by_default=settings.drive_adaptation)  # fmt: skip
         batcher = self.ctx.batcher
         if batcher is None:
             async for request in request_iterator:

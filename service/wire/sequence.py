@@ -66,6 +66,11 @@ class SequenceLocalizeRequest(BatchLocalizeRequest):
     driving order), and optionally the filter's options."""
 
     filter: SequenceFilterOptions | None = Field(None, description="sequence filter options")
+    adaptation: bool | None = Field(
+        None, description="standardise each frame by the running statistics of the drive's "
+        "earlier frames first (appearance adaptation); unset: the server's default "
+        "(GRIDPLACE_DRIVE_ADAPTATION, on unless configured off)",
+    )  # fmt: skip
 
 
 class SequenceLocalization(Answer):
@@ -82,3 +87,4 @@ class SequenceLocalization(Answer):
     raw_confidence: list[float]
     filter: dict[str, Any] = Field(description="every filter parameter the server used")
     latency_ms: float
+    adapted: bool = Field(False, description="the drive's frames were adapted (appearance adaptation)")

@@ -156,3 +156,33 @@ def test_the_wire_options_carry_the_filters_bounds() -> None:
         want = {k: v for k, v in lib[name].items() if k in keep}
         assert {k: v for k, v in variant.items() if k in keep} == want, name
         assert prop["description"] == lib[name]["description"], name
+
+
+def test_drives_are_adapted_unless_the_request_says_not(client: TestClient, trained: str,
+                                                        registry, route) -> None:  # fmt: skip
+    from service.encoding import PhaseEncoder
+    from service.encoding.adaptation import adapt_drive
+
+    Q = route[1][:80].astype(np.float32)
+    model = client.app.state.context.store.get(trained).model
+    adapted = model.localize(adapt_drive(model, Q.astype(np.float64))).index.tolist()
+    plain = model.localize(Q).index.tolist()
+    url = f"/v1/localize/sequence?map={trained}&d={Q.shape[1]}"
+    binary = {"content": Q.tobytes(), "headers": {"Content-Type": "application/octet-stream"}}
+    on = client.post(url, **binary).json()
+    off = client.post(url + "&adaptation=false", **binary).json()
+    assert on["adapted"] and on["raw_index"] == adapted
+    assert not off["adapted"] and off["raw_index"] == plain
+    body = {"map": trained, "descriptors": Q.tolist()}
+    assert client.post("/v1/localize/sequence", json={**body, "adaptation": False}).json()["raw_index"] == plain
+    both = client.post("/v1/localize/sequence?adaptation=true", json={**body, "adaptation": False})
+    assert both.status_code == 400 and "not both" in both.json()["message"]
+    assert client.post(url + "&adaptation=maybe", **binary).status_code == 422
+    # a map trained without normalisation keeps no statistics: asked for, adaptation is a 400
+    bare_model = PhaseEncoder(n_patterns=2, trainer="ridge", normalize=False).fit(route[0])
+    registry.publish("bare", bare_model, params={}, extractor=None, metrics={}, job_id=None)
+    client.app.state.context.store.refresh()
+    bare = {"map": "bare", "descriptors": Q.tolist()}
+    assert client.post("/v1/localize/sequence", json=bare).json()["adapted"] is False
+    refused = client.post("/v1/localize/sequence", json={**bare, "adaptation": True})
+    assert refused.status_code == 400 and "route statistics" in refused.json()["message"]

@@ -14,18 +14,31 @@ from client_helpers import TOKEN
 
 from service.api.process import ServerProcess
 from service.client import AsyncGridplaceClient, GridplaceClient, Job
+from service.encoding.adaptation import adapt_drive
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import InvalidParameterError, NotFoundError
 
 Route = tuple[np.ndarray, np.ndarray]
 
 
-def _oracle(data_dir: Path, version: int, Q: np.ndarray, config: SequenceConfig) -> list[int]:
-    """What the stored artifact and the library filter answer in-process."""
+def _oracle(data_dir: Path, version: int, Q: np.ndarray, config: SequenceConfig,
+            adapted: bool = True) -> list[int]:  # fmt: skip
+    """What the stored artifact and the library filter answer in-process (the drive adapted
+    to its own statistics first, as the server does by default)."""
     from service.registry import Registry
 
     model = Registry(data_dir).load_model("synth", version)
-    return sequence_localize(model, Q.astype(np.float32), config).index.tolist()
+    Q = Q.astype(np.float32).astype(np.float64)
+    if adapted:
+        Q = adapt_drive(model, Q)
+    return sequence_localize(model, Q, config).index.tolist()
+
+
+def _raw(data_dir: Path, version: int, Q: np.ndarray) -> list[int]:
+    from service.registry import Registry
+
+    model = Registry(data_dir).load_model("synth", version)
+    return model.localize(adapt_drive(model, Q.astype(np.float32).astype(np.float64))).index.tolist()
 
 
 def test_the_client_gets_the_library_filter_answers(
@@ -34,8 +47,11 @@ def test_the_client_gets_the_library_filter_answers(
     Q = route[1][20:140]
     got = gp.localize_sequence("synth", Q)
     assert got.n == 120 and got.map == "synth"
-    assert got.index == _oracle(data_dir, got.version, Q, SequenceConfig())
-    assert got.raw_index == gp.localize_batch("synth", Q).index
+    assert got.adapted and got.index == _oracle(data_dir, got.version, Q, SequenceConfig())
+    assert got.raw_index == _raw(data_dir, got.version, Q)
+    plain = gp.localize_sequence("synth", Q, adaptation=False)
+    assert not plain.adapted and plain.raw_index == gp.localize_batch("synth", Q).index
+    assert plain.index == _oracle(data_dir, got.version, Q, SequenceConfig(), adapted=False)
     assert got.filter == SequenceConfig().model_dump()
     assert all(0.0 <= c <= 1.0 for c in got.confidence) and len(got.speed) == 120
     truth = np.arange(20, 140)

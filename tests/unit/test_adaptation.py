@@ -127,4 +127,4 @@ def test_the_server_setting_defaults_to_the_library_default() -> None:
     from service.encoding.adaptation import DEFAULT_ALPHA
     from service.settings import Settings
 
-    assert Settings().adaptation_alpha == DEFAULT_ALPHA and Settings().stream_adaptation
+    assert Settings().adaptation_alpha == DEFAULT_ALPHA and Settings().drive_adaptation
