@@ -30,6 +30,12 @@ from service.encoding import (
     load_npy,
     save_model,
 )
+from service.encoding.adaptation import (
+    AdaptationConfig,
+    AppearanceAdapter,
+    adapt_drive,
+    route_statistics,
+)
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
 from service.encoding.presets import DEFAULT_PRESET, describe_presets
@@ -138,6 +144,26 @@ FilterOpt = Annotated[
 ]  # fmt: skip
 
 
+AdaptOpt = Annotated[
+    bool | None,
+    typer.Option(
+        "--adapt/--no-adapt",
+        help="standardise the query rows by the running statistics of the rows before them "
+             "(appearance adaptation: one camera's frames, in row order) [default: on when the "
+             "model keeps route statistics]",
+        show_default=False,
+    ),
+]  # fmt: skip
+
+
+def adaptation_for(model: Any, adapt: bool | None) -> AdaptationConfig | None:
+    """``--adapt/--no-adapt`` for ``model``: explicit ``--adapt`` needs route statistics."""
+    if adapt is False or (adapt is None and route_statistics(model) is None):
+        return None
+    AppearanceAdapter.for_model(model)  # refuses a model without statistics, naming why
+    return AdaptationConfig()
+
+
 def sequence_config(items: list[str] | None) -> SequenceConfig:
     """``--filter KEY=VALUE`` options as a validated filter configuration."""
     given: dict[str, str] = {}
@@ -157,15 +183,19 @@ def localize(
     confidence_out: Annotated[Path | None, typer.Option(help="write confidences (.npy)")] = None,
     sequence: SequenceOpt = False,
     filter_params: FilterOpt = None,
+    adapt: AdaptOpt = None,
 ) -> None:
     """Predict the frame index of every query row (with --sequence: the filtered estimates)."""
     if filter_params and not sequence:
         raise InvalidParameterError("--filter needs --sequence")
     config = sequence_config(filter_params) if sequence else None
     model = load_model(model_dir)
-    Q = load_npy(queries)
+    Q = check_descriptors(load_npy(queries), n_features=model.n_features_in_, what=str(queries))
+    adaptation = adaptation_for(model, adapt)
+    if adaptation is not None:
+        Q = adapt_drive(model, Q, adaptation)
     if config is not None:
-        track = sequence_localize(model, check_descriptors(Q, n_features=model.n_features_in_), config)
+        track = sequence_localize(model, Q, config)
         index, confidence = track.index, track.confidence
     else:
         loc = model.localize(Q)
@@ -188,6 +218,7 @@ def evaluate(
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
     sequence: SequenceOpt = False,
     filter_params: FilterOpt = None,
+    adapt: AdaptOpt = None,
 ) -> None:
     """Precision within a tolerance, query time and storage of a saved model (with --sequence
     also the sequence filter's precision, the query file being one drive in row order)."""
@@ -197,14 +228,17 @@ def evaluate(
     model = load_model(model_dir)
     truth = load_npy(ground_truth) if ground_truth is not None else None
     Q = check_descriptors(load_npy(queries), n_features=model.n_features_in_, what=str(queries))
-    result = evaluate_model(model, Q, truth, tolerance, sequence=config)
+    result = evaluate_model(model, Q, truth, tolerance, sequence=config,
+                            adaptation=adaptation_for(model, adapt))  # fmt: skip
     if as_json:
         typer.echo(json.dumps(result))
         return
+    adapted = result["adaptation"]
     console.print(
         f"precision@{tolerance}: {result['precision']:.4f} on {result['n']} queries; "
         f"footprint {result['footprint_bytes']} B (paper formula {result['paper_bytes']:.0f} B); "
-        f"{result['query_seconds_per_descriptor'] * 1e6:.1f} µs/query"
+        f"{result['query_seconds_per_descriptor'] * 1e6:.1f} µs/query; appearance adaptation "
+        + (f"on (alpha {adapted['alpha']:g}; --no-adapt: off)" if adapted else "off")
     )
     if config is not None:
         seq = result["sequence"]

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from service.encoding.adaptation import AdaptationConfig, adapt_drive
 from service.encoding.base import PlaceRecognizer, precision_at
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import InvalidInputError
@@ -32,15 +33,21 @@ def evaluate(
     tolerance: int = 0,
     tolerances: tuple[int, ...] = TOLERANCES,
     sequence: SequenceConfig | None = None,
+    adaptation: AdaptationConfig | None = None,
 ) -> dict[str, Any]:
     """Precision within ``tolerance`` frames (and at several tolerances), timing, storage.
 
     ``ground_truth[i]`` is the reference frame of query ``i``; identity when omitted. With
     ``sequence``, the queries are also localized as one drive in row order through the sequence
     filter, adding ``sequence_precision``, ``sequence_precision_at`` and ``sequence`` (filter
-    parameters, timing, mean confidence) to the answer.
+    parameters, timing, mean confidence) to the answer. With ``adaptation`` the queries are
+    first adapted as one camera's frames in row order (:mod:`service.encoding.adaptation`;
+    the model must keep route statistics), for both measures; ``adaptation`` in the answer
+    gives its parameters (``None``: not adapted).
     """
     truth = _truth(queries, ground_truth)
+    if adaptation is not None:
+        queries = adapt_drive(model, queries, adaptation)
     start = time.perf_counter()
     loc = model.localize(queries)
     elapsed = time.perf_counter() - start
@@ -59,6 +66,7 @@ def evaluate(
         "query_seconds_total": elapsed,
         "query_seconds_per_descriptor": elapsed / max(1, queries.shape[0]),
         "model": model.kind,
+        "adaptation": None if adaptation is None else adaptation.model_dump(),
     }
     if sequence is not None:
         out.update(evaluate_sequence(model, queries, truth, tolerance, tolerances, sequence))

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from service.cli import app
 from service.encoding import PhaseEncoder, load_model, save_model
+from service.encoding.adaptation import adapt_drive
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.synthetic import smooth_route
 
@@ -85,8 +86,12 @@ def test_localize_sequence_writes_the_filtered_indices(files: dict[str, Path]) -
     )
     assert code == 0, stderr
     config = SequenceConfig(emission_scale=0.2, reverse=True)
-    want = sequence_localize(load_model(files["model"]), np.load(files["query"]), config).index
-    np.testing.assert_array_equal(np.load(pred), want)
+    model = load_model(files["model"])
+    drive = adapt_drive(model, np.load(files["query"]))  # adapted by default
+    np.testing.assert_array_equal(np.load(pred), sequence_localize(model, drive, config).index)
+    code, _, stderr = invoke("localize", files["model"], files["query"], "--no-adapt", "--out", pred)
+    assert code == 0, stderr
+    np.testing.assert_array_equal(np.load(pred), model.localize(np.load(files["query"])).index)
 
 
 @pytest.mark.parametrize(
@@ -132,3 +137,32 @@ def test_bench_tuning_picks_the_best_candidate_on_the_drives() -> None:
     means = {r["config"]["method"]: r["mean"] for r in result["candidates"]}
     assert result["best"]["method"] == max(means, key=means.get)  # type: ignore[arg-type]
     assert set(result["drives"]) == set(drives) and result["split"] == "A"
+
+
+def test_evaluate_adapts_the_queries_unless_told_not_to(files: dict[str, Path]) -> None:
+    model = load_model(files["model"])
+    Q = np.load(files["query"])
+    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "2", "--json")
+    on = json.loads(stdout)
+    assert code == 0 and on["adaptation"] == {"alpha": 0.02}
+    truth = np.arange(Q.shape[0])
+    adapted = model.localize(adapt_drive(model, Q)).index
+    assert on["precision"] == pytest.approx(np.mean(np.abs(adapted - truth) <= 2))
+    code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "2", "--json",
+                             "--no-adapt")  # fmt: skip
+    off = json.loads(stdout)
+    assert code == 0 and off["adaptation"] is None
+    assert off["precision"] == pytest.approx(np.mean(np.abs(model.localize(Q).index - truth) <= 2))
+    code, stdout, _ = invoke("evaluate", files["model"], files["query"])
+    assert code == 0 and "appearance adaptation on" in stdout
+
+
+def test_a_model_without_route_statistics_is_evaluated_unadapted(files: dict[str, Path]) -> None:
+    route = smooth_route(120, 16, seed=3)  # SYNTHETIC
+    bare = files["root"] / "bare"
+    np.save(files["root"] / "q16.npy", route.query)
+    save_model(PhaseEncoder(trainer="ridge", normalize=False).fit(route.reference), bare)
+    code, stdout, _ = invoke("evaluate", bare, files["root"] / "q16.npy", "--json")
+    assert code == 0 and json.loads(stdout)["adaptation"] is None
+    code, _, stderr = invoke("evaluate", bare, files["root"] / "q16.npy", "--adapt")
+    assert code == 2 and "statistics" in stderr

@@ -16,6 +16,7 @@ def _results(ours: float, nn: float, drive: float = 0.99, nn_drive: float = 0.97
         "gridplace/identical": {**p(1.0), "footprint_bytes": 1_000},
         "exact NN/identical": {**p(1.0), "footprint_bytes": 40_000},
         "gridplace/cross-season drive": p(drive), "exact NN/cross-season drive": p(nn_drive),
+        "gridplace/cross-season as sent": p(ours / 2), "exact NN/cross-season as sent": p(nn / 2),
     }  # fmt: skip
 
 
@@ -36,3 +37,8 @@ def test_reading_ends_with_the_results_doc() -> None:
     text = reading(_results(0.3, 0.4), 3576)
     assert text.splitlines()[-1].endswith(f"{RESULTS_DOC} (Across conditions)")
     assert "B per frame" in text and verdict({}) is None
+
+
+def test_the_adaptation_line_gives_both_models_before_and_after() -> None:
+    text = reading(_results(0.5, 0.4), 3576)
+    assert "gridplace 25.0% → 50.0%, exact NN 20.0% → 40.0%" in text
