@@ -113,12 +113,19 @@ class AppearanceAdapter:
         out = np.empty_like(X)
         alpha, mean, var = self.config.alpha, self._mean, self._var
         mu, sigma = self.route_mean, self.route_scale
+        delta, work = np.empty_like(mean), np.empty_like(mean)  # no temporaries per frame
         for t in range(X.shape[0]):
-            delta = X[t] - mean
-            out[t] = mu + sigma * delta / np.sqrt(np.maximum(var, self._floor))
-            mean += alpha * delta  # exponentially weighted mean and variance (West 1979)
-            var *= 1.0 - alpha
-            var += (1.0 - alpha) * alpha * delta * delta
+            np.subtract(X[t], mean, out=delta)
+            np.maximum(var, self._floor, out=work)
+            np.sqrt(work, out=work)
+            np.divide(delta, work, out=work)
+            work *= sigma
+            np.add(work, mu, out=out[t])
+            np.multiply(delta, alpha, out=work)  # exponentially weighted mean and variance
+            mean += work
+            np.multiply(work, delta, out=work)  # α·δ²
+            var += work
+            var *= 1.0 - alpha  # (1 − α)(v + α·δ²), West (1979)
         self._frames += X.shape[0]
         return out
 
