@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import time
 from typing import Annotated
 
 import orjson
@@ -27,12 +28,15 @@ from service.api.schemas import (
     body_doc,
 )
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
-from service.errors import EmptyInputError, InvalidInputError
+from service.core.vehicle_adapters import answer_vehicle
+from service.encoding import check_descriptors
+from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
 from service.wire import (
     BatchLocalization,
     BatchLocalizeRequest,
     Localization,
     LocalizeRequest,
+    VehicleOptions,
 )
 
 router = APIRouter(prefix="/v1", tags=["localize"])
@@ -57,7 +61,7 @@ def _one(result: LocalizeResult) -> Response:
     return Response(orjson.dumps({
         "map": result.map, "version": result.version, "index": int(result.index[0]),
         "chunk": int(result.chunk[0]), "confidence": float(result.confidence[0]),
-        "latency_ms": result.latency_ms,
+        "latency_ms": result.latency_ms, "adapted": result.adapted,
     }), media_type="application/json")  # fmt: skip
 
 
@@ -70,8 +74,9 @@ def _many(result: LocalizeResult) -> Response:
     }, option=orjson.OPT_SERIALIZE_NUMPY), media_type="application/json")  # fmt: skip
 
 
-async def _form(request: Request) -> tuple[str, list[tuple[str, bytes]]]:
-    """``map`` and the image files of a multipart form."""
+async def _form(request: Request, fields: tuple[str, ...] = ()
+                ) -> tuple[str, list[tuple[str, bytes]], dict[str, str]]:  # fmt: skip
+    """``map``, the image files and the text ``fields`` given of a multipart form."""
     form = await request.form()
     name = form.get("map")
     if not isinstance(name, str) or not name:
@@ -82,7 +87,8 @@ async def _form(request: Request) -> tuple[str, list[tuple[str, bytes]]]:
             images.append((value.filename or key, await value.read()))
     if not images:
         raise EmptyInputError("multipart localize needs an image file field ('image')")
-    return name, images
+    given = {f: v for f in fields if isinstance(v := form.get(f), str)}
+    return name, images, given
 
 
 def binary_map(map_q: str | None, map_h: str | None, what: str) -> str:
@@ -115,11 +121,16 @@ async def localize(request: Request) -> Response:
     svc = _service(request)
     ctype = request.headers.get("content-type", "")
     if ctype.startswith("multipart/form-data"):
-        name, images = await _form(request)
+        name, images, given = await _form(request, ("vehicle_id", "adaptation"))
         if len(images) != 1:
             raise InvalidInputError(f"send one image here ({len(images)} sent); use /v1/localize/batch")
+        if given:  # validated as the JSON body's fields are
+            who = VehicleOptions.model_validate(given)
+            return _one(await run_in_threadpool(_localize_vehicle, request, name, who, images))
         return _one(await run_in_threadpool(svc.localize_images, name, images))
     req = LocalizeRequest.model_validate_json(await _json_body(request))
+    if req.vehicle_id is not None or req.adaptation is not None:
+        return _one(await run_in_threadpool(_localize_vehicle, request, req.map, req, None))
     batcher = request.app.state.context.batcher
     if batcher is None or req.image_b64 is not None:
         return _one(await run_in_threadpool(_localize_one, svc, req))
@@ -127,6 +138,34 @@ async def localize(request: Request) -> Response:
         raw = decode_float32(_b64(req.descriptor_b64, "descriptor_b64"), None, "descriptor_b64")
         return _one(await batcher.localize(req.map, raw))
     return _one(await batcher.localize(req.map, _descriptor_row(req)))
+
+
+def _localize_vehicle(request: Request, name: str, req: LocalizeRequest | VehicleOptions,
+                      images: list[tuple[str, bytes]] | None) -> LocalizeResult:  # fmt: skip
+    """One query of a named vehicle: adapted to its earlier queries (or as sent, if asked);
+    the query is ``images`` (a form's file) or the JSON body's."""
+    ctx = request.app.state.context
+    svc: LocalizationService = ctx.service
+    start = time.perf_counter()
+    loaded = svc.served(name)
+    if images is not None or not isinstance(req, LocalizeRequest):
+        kind = "image"
+        Q = svc.query_images(loaded, images or [])
+    elif req.image_b64 is not None:
+        kind = "image"
+        Q = svc.query_images(loaded, [("image_b64", _b64(req.image_b64, "image_b64"))])
+    elif req.descriptor_b64 is not None:
+        kind = "descriptor"
+        Q = svc.query_bytes(loaded, _b64(req.descriptor_b64, "descriptor_b64"))
+    else:
+        kind = "descriptor"
+        Q = check_descriptors(_descriptor_row(req), n_features=loaded.n_features, what="descriptor")
+    if Q.shape[0] != 1:
+        raise DimensionMismatchError(
+            f"a query carries one descriptor of d={loaded.n_features} values; got "
+            f"{Q.shape[0] * loaded.n_features}", expected=loaded.n_features, got=int(Q.size),
+        )  # fmt: skip
+    return answer_vehicle(svc, ctx.vehicles, loaded, Q, start, kind, req.vehicle_id, req.adaptation)
 
 
 def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:
@@ -169,7 +208,7 @@ async def localize_batch(
         body = await request.body()
         result = await run_in_threadpool(svc.localize_bytes, name, body, d_q or d_h)
     elif ctype.startswith("multipart/form-data"):
-        name, images = await _form(request)
+        name, images, _ = await _form(request)
         result = await run_in_threadpool(svc.localize_images, name, images)
     else:
         req = BatchLocalizeRequest.model_validate_json(await _json_body(request))

@@ -109,7 +109,7 @@ async def localize_sequence(
         result = await run_in_threadpool(localizer.localize_bytes, name, body, d_q or d_h, config,
                                          adaptation)  # fmt: skip
     elif ctype.startswith("multipart/form-data"):
-        name, images = await _form(request)
+        name, images, _ = await _form(request)
         config = _config(query)
         result = await run_in_threadpool(localizer.localize_images, name, images, config,
                                          adaptation)  # fmt: skip

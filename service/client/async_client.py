@@ -84,8 +84,9 @@ class AsyncGridplaceClient:
         return await self._send(calls.ready())
 
     async def localize(self, map: str, descriptor: ArrayLike | None = None, *,
-                       image: ImageSource | None = None) -> Localization:  # fmt: skip
-        return await self._send(calls.localize(map, descriptor, image))
+                       image: ImageSource | None = None, vehicle_id: str | None = None,
+                       adaptation: bool | None = None) -> Localization:  # fmt: skip
+        return await self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation))
 
     async def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
         return await self._send(calls.localize_batch(map, descriptors))

@@ -142,15 +142,19 @@ def ready() -> Call[Readiness]:
 
 
 def localize(
-    map_name: str, descriptor: ArrayLike | None, image: ImageSource | None
-) -> Call[Localization]:
+    map_name: str, descriptor: ArrayLike | None, image: ImageSource | None,
+    vehicle_id: str | None = None, adaptation: bool | None = None,
+) -> Call[Localization]:  # fmt: skip
     if (descriptor is None) == (image is None):
         raise InvalidInputError("localize needs exactly one of descriptor or image")
     read = _reader(Localization)
+    who: dict[str, Any] = {k: v for k, v in (("vehicle_id", vehicle_id), ("adaptation", adaptation))
+                           if v is not None}  # fmt: skip
     if image is not None:
         name, data = _read_image(image)
+        form = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in who.items()}
         return Call("POST", "/v1/localize", read, kwargs={
-            "data": {"map": map_name}, "files": {"image": (name, data)}})  # fmt: skip
+            "data": {"map": map_name, **form}, "files": {"image": (name, data)}})  # fmt: skip
     assert descriptor is not None
     row = as_float32_rows(descriptor, "descriptor")
     if row.shape[0] != 1:
@@ -158,8 +162,9 @@ def localize(
                                 "use localize_batch")  # fmt: skip
     b64 = base64.b64encode(row.tobytes()).decode("ascii")
     return Call(
-        "POST", "/v1/localize", read, kwargs={"json": {"map": map_name, "descriptor_b64": b64}}
-    )
+        "POST", "/v1/localize", read,
+        kwargs={"json": {"map": map_name, "descriptor_b64": b64, **who}},
+    )  # fmt: skip
 
 
 def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalization]:

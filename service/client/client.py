@@ -133,10 +133,13 @@ class GridplaceClient:
 
     # -- localization -----------------------------------------------------------------------
     def localize(self, map: str, descriptor: ArrayLike | None = None, *,
-                 image: ImageSource | None = None) -> Localization:  # fmt: skip
+                 image: ImageSource | None = None, vehicle_id: str | None = None,
+                 adaptation: bool | None = None) -> Localization:  # fmt: skip
         """One query: a descriptor (d floats, sent as base64 float32) or an encoded image
-        (bytes or a file path; the map's stored extractor turns it into a descriptor)."""
-        return self._send(calls.localize(map, descriptor, image))
+        (bytes or a file path; the map's stored extractor turns it into a descriptor).
+        With ``vehicle_id`` the server adapts the query to that vehicle's earlier ones
+        (appearance adaptation; ``adaptation=False`` sends it as it is)."""
+        return self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation))
 
     def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
         """Many descriptors (an n × d matrix) in one binary little-endian float32 request."""

@@ -15,6 +15,8 @@ from service.core.batching import MicroBatcher
 from service.core.localization import LocalizationService
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import ModelStore
+from service.core.vehicle_adapters import VehicleAdapters
+from service.encoding.adaptation import AdaptationConfig
 from service.settings import Settings
 
 if TYPE_CHECKING:
@@ -33,7 +35,12 @@ class ServiceContext:
     metrics: ServiceMetrics
     service: LocalizationService
     batcher: MicroBatcher | None = None  # None: localize inline (``batching`` off)
+    vehicles: VehicleAdapters | None = None  # REST vehicles' appearance statistics
     _blas: Any = None
+
+    def __post_init__(self) -> None:
+        if self.vehicles is None:
+            self.vehicles = VehicleAdapters(AdaptationConfig(alpha=self.settings.adaptation_alpha))
 
     def start(self) -> None:
         """Start the hot-swap poller (its first pass loads every active version) and the

@@ -52,6 +52,7 @@ class LocalizeResult:
     chunk: np.ndarray  # int64 (n,)
     confidence: np.ndarray  # float64 (n,)
     latency_ms: float  # service-layer time: decode + extract + encode
+    adapted: bool = False  # standardised by the vehicle's running statistics first
 
     def __len__(self) -> int:
         return int(self.index.shape[0])

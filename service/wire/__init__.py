@@ -38,6 +38,7 @@ from service.wire.localize import (
     BatchLocalizeRequest,
     Localization,
     LocalizeRequest,
+    VehicleOptions,
 )
 from service.wire.maps import MapDetail, MapSummary, Version
 from service.wire.sequence import (
@@ -74,6 +75,7 @@ __all__ = [
     "SequenceLocalization",
     "SequenceLocalizeRequest",
     "TrainingOptions",
+    "VehicleOptions",
     "Version",
     "VersionNumber",
     "exactly_one_of",

@@ -47,7 +47,21 @@ def _exactly_one(model: Request, fields: tuple[str, ...]) -> None:
         )
 
 
-class LocalizeRequest(Request):
+class VehicleOptions(Request):
+    """Who sends a query, for appearance adaptation (also the form fields of an image query)."""
+
+    vehicle_id: str | None = Field(
+        None, min_length=1, max_length=128,
+        description="the sending vehicle: its queries are adapted to its own earlier ones "
+        "(appearance adaptation) unless adaptation is false",
+    )
+    adaptation: bool | None = Field(
+        None, description="appearance adaptation (needs vehicle_id); unset: the server's "
+        "default (GRIDPLACE_DRIVE_ADAPTATION) when a vehicle_id is given",
+    )
+
+
+class LocalizeRequest(VehicleOptions):
     """One query: exactly one of ``descriptor``, ``descriptor_b64`` or ``image_b64``."""
 
     model_config = ConfigDict(json_schema_extra=exactly_one_of(*QUERY_FIELDS))
@@ -89,6 +103,7 @@ class Localization(Answer):
     chunk: int = Field(description="chunk that answered (0 without chunking)")
     confidence: float = Field(ge=0.0, le=1.0)
     latency_ms: float = Field(description="server-side time in the service layer")
+    adapted: bool = Field(False, description="the query was adapted to the vehicle's earlier ones")
 
 
 class BatchLocalization(Answer):

@@ -72,6 +72,20 @@ def test_localize_and_batch_agree_with_the_artifact(gp: GridplaceClient, synth: 
     assert hits.mean() > 0.5  # the served model localizes its own route
 
 
+def test_a_vehicle_gets_answers_adapted_to_its_earlier_queries(gp: GridplaceClient, synth: Job,
+                                                               route: Route, data_dir: Path) -> None:  # fmt: skip
+    from service.encoding.adaptation import adapt_drive
+    from service.registry import Registry
+
+    model = Registry(data_dir).load_model("synth", 1)
+    Q = route[1][:20]
+    want = model.localize(adapt_drive(model, Q.astype(np.float32).astype(np.float64))).index.tolist()
+    got = [gp.localize("synth", q, vehicle_id="client-van") for q in Q]
+    assert all(g.adapted for g in got) and [g.index for g in got] == want
+    plain = gp.localize("synth", Q[3], vehicle_id="client-van", adaptation=False)
+    assert not plain.adapted and plain.index == _oracle(data_dir, "synth", 1, Q[3:4])[0]
+
+
 def test_upload_from_a_file_activate_and_delete(gp: GridplaceClient, synth: Job, route: Route,
                                                 tmp_path: Path) -> None:  # fmt: skip
     path = tmp_path / "route.npy"
