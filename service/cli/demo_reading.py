@@ -51,7 +51,7 @@ def _adaptation(results: Results, n_frames: int) -> str | None:
     return (
         f"appearance adaptation (each query standardised by the running mean and variance of "
         f"the frames before it; no positions used): gridplace {p[0]:.1%} → {p[1]:.1%}, exact NN "
-        f"{p[2]:.1%} → {p[3]:.1%}; a single stateless /localize query is answered as sent."
+        f"{p[2]:.1%} → {p[3]:.1%}; a /localize query without a vehicle_id is answered as sent."
     )
 
 
