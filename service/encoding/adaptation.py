@@ -15,7 +15,9 @@ frames). The default was chosen on the tuning half of Nordland (winter frames 0�
 the summer map), CNN and raw-pixel descriptors alike, among 0.005–0.1: precision within ±5
 frames of the ``robust`` preset went from 52.9 % to 63.5 % (CNN) and from 24.2 % to 53.2 %
 (pixels). The standard deviation a column may be divided by is floored at ``MIN_SCALE_RATIO·σ``
-so that a column that stays constant in one drive (a saturated sky) is not blown up.
+so that a column that stays constant in one drive (a saturated sky) is not blown up, and a
+frame so far from the running mean that its square would overflow is adapted but not learnt
+from (a vehicle cannot poison its own statistics with one wild frame).
 
 Works with any model whose front-end keeps the route's statistics (:meth:`for_model`), or
 with statistics of a reference array (:meth:`for_reference`, e.g. for a baseline).
@@ -33,6 +35,7 @@ from service.errors import InvalidParameterError
 
 DEFAULT_ALPHA = 0.02
 MIN_SCALE_RATIO = 0.01  # √v is never taken below this fraction of the route's σ
+_MAX_DELTA = 1e150  # a frame this far from the running mean would overflow the variance
 
 
 class AdaptationConfig(BaseModel):
@@ -121,6 +124,8 @@ class AppearanceAdapter:
             np.divide(delta, work, out=work)
             work *= sigma
             np.add(work, mu, out=out[t])
+            if not np.abs(delta, out=work).max() < _MAX_DELTA:
+                continue  # δ² would overflow: the frame is answered but not learnt from
             np.multiply(delta, alpha, out=work)  # exponentially weighted mean and variance
             mean += work
             np.multiply(work, delta, out=work)  # α·δ²

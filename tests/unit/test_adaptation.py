@@ -101,6 +101,18 @@ def test_reset_forgets_the_drive_and_constant_columns_stay_finite() -> None:
     assert a.frames == 0 and np.allclose(a.transform(X[:1]), X[:1])
 
 
+def test_a_wild_frame_is_answered_but_not_learnt_from() -> None:
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(20, 3))
+    clean = _adapter(3, 0.1).transform(X)
+    a = _adapter(3, 0.1)
+    before = a.transform(X[:10])
+    wild = a.transform(np.full((1, 3), 1e200))
+    after = a.transform(X[10:])
+    assert np.array_equal(before, clean[:10]) and np.array_equal(after, clean[10:])
+    assert np.all(np.abs(wild) > 1e100)  # the model's own overflow check then refuses it
+
+
 def test_models_give_their_route_statistics() -> None:
     route = smooth_route(200, 16, seed=0)
     model = build_model(ModelParams()).fit(route.reference)
