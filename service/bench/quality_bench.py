@@ -10,10 +10,15 @@ protocol of :mod:`service.bench.quality_protocols`, every method of
 * sequence: the drive's ``frame_log_scores`` through a fresh HMM filter
   (:func:`service.encoding.sequence.filter_sequence`; its default parameters were tuned on
   half A of protocol (a) by ``gridplace bench sequence``), same tolerances;
+* adapted: the same two on the drive's rows after appearance adaptation
+  (:mod:`service.encoding.adaptation`; a fresh adapter per drive, fed the drive in order),
+  with the model's route statistics where it keeps them and otherwise those of the fold's
+  training rows — so every method is adapted from the same kind of statistics;
 * storage: the paper's formula and the bytes the model really stores (``footprint()``).
 
-Nothing here is tuned: methods run at their fixed settings, so A (validation) numbers are
-the ones any choice may be based on and B (test) the ones to quote.
+Nothing here is tuned: methods run at their fixed settings (adaptation at its default
+``alpha``, chosen on half A of protocol (a)), so A (validation) numbers are the ones any
+choice may be based on and B (test) the ones to quote.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from service.bench.quality_protocols import PROTOCOL_LABELS, PROTOCOLS, Fold, folds_for
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, route_statistics
 from service.encoding.base import precision_at
 from service.encoding.sequence import SequenceConfig, filter_sequence
 from service.errors import GridplaceError, InvalidInputError
@@ -37,8 +43,10 @@ from service.npyfile import load_npy
 
 TOLERANCES: tuple[int, ...] = (0, 2, 5, 10)
 HEADLINE = 5  # the tolerance of the plot and the one-line readings
+KINDS: tuple[str, ...] = ("single", "sequence", "single_adapted", "sequence_adapted")
 TUNED_WHERE = {
     "sequence_filter": "defaults tuned on half A of protocol (a) (`gridplace bench sequence`)",
+    "adaptation": "default alpha chosen on half A of protocol (a) (robust, CNN and pixels)",
     "methods": "fixed settings; any preset choice was made on half A (validation) only",
     "test": "half B (protocol a) and each fold's unseen half (protocol b) were never tuned on",
 }
@@ -89,9 +97,40 @@ def _precisions(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return {str(t): precision_at(pred, truth, t) for t in TOLERANCES}
 
 
+def drive_adapter(model: Any, fold: Fold,
+                  config: AdaptationConfig) -> tuple[AppearanceAdapter, str]:  # fmt: skip
+    """The adapter of ``model``'s drives and where its statistics come from: the model's route
+    statistics if it keeps them, else those of the fold's training rows (a baseline without a
+    normaliser, or one wrapped for several traversals)."""
+    if route_statistics(model) is not None:
+        return AppearanceAdapter.for_model(model, config), "model"
+    return AppearanceAdapter.for_reference(fold.train_rows, config), "training rows"
+
+
+def measure_adapted(model: Any, adapter: AppearanceAdapter, drives: dict[str, np.ndarray],
+                    query: np.ndarray, truth: np.ndarray,
+                    config: SequenceConfig) -> tuple[dict[str, Any], float]:  # fmt: skip
+    """Single frame and sequence precision of every drive adapted on its own (the adapter
+    reset, then fed the drive's rows in order), and the seconds spent adapting."""
+    out: dict[str, Any] = {}
+    adapt_s = 0.0
+    for name, drive in drives.items():
+        adapter.reset()
+        start = time.perf_counter()
+        rows = adapter.transform(query[drive])
+        adapt_s += time.perf_counter() - start
+        track = filter_sequence(model.frame_log_scores(rows), config)
+        out[name] = {"single_adapted": _precisions(model.localize(rows).index, truth[drive]),
+                     "sequence_adapted": _precisions(track.index, truth[drive])}  # fmt: skip
+    return out, adapt_s
+
+
 def measure(method: QualityMethod, fold: Fold, query: np.ndarray, truth: np.ndarray,
-            config: SequenceConfig) -> dict[str, Any]:  # fmt: skip
-    """Fit ``method`` on ``fold`` and measure every drive of it (single frame and sequence)."""
+            config: SequenceConfig,
+            adaptation: AdaptationConfig | None = None) -> dict[str, Any]:  # fmt: skip
+    """Fit ``method`` on ``fold`` and measure every drive of it: single frame and sequence,
+    as given and adapted."""
+    adaptation = adaptation or AdaptationConfig()
     start = time.perf_counter()
     model = fit_places(method.build(), fold.train_rows, fold.train_places)
     fit_s = time.perf_counter() - start
@@ -111,12 +150,19 @@ def measure(method: QualityMethod, fold: Fold, query: np.ndarray, truth: np.ndar
         seq_s += time.perf_counter() - start
         drives[name] = {"n": int(drive.size), "single": _precisions(pred[pos], truth[drive]),
                         "sequence": _precisions(track.index, truth[drive])}  # fmt: skip
+    adapter, statistics = drive_adapter(model, fold, adaptation)
+    adapted, adapt_s = measure_adapted(model, adapter, fold.drives, query, truth, config)
+    for name, figures in adapted.items():
+        drives[name].update(figures)
     n_places = int(model.n_frames_)
+    n_driven = max(1, sum(d.size for d in fold.drives.values()))
     return {
         "method": method.name, "family": method.family, "params": method.params,
         "fold": fold.name, "fit_seconds": fit_s,
         "query_us": 1e6 * query_s / max(1, rows.size),
-        "sequence_us_per_frame": 1e6 * seq_s / max(1, sum(d.size for d in fold.drives.values())),
+        "sequence_us_per_frame": 1e6 * seq_s / n_driven,
+        "adapt_us_per_frame": 1e6 * adapt_s / n_driven,
+        "adaptation": {"statistics": statistics, "config": adaptation.model_dump()},
         "paper_bytes": fp.paper_bytes, "actual_bytes": fp.actual_bytes,
         "actual_bytes_per_place": fp.actual_bytes / n_places, "n_places": n_places,
         "footprint": fp.to_dict(), "drives": drives,
@@ -124,9 +170,10 @@ def measure(method: QualityMethod, fold: Fold, query: np.ndarray, truth: np.ndar
 
 
 def _pooled(drives: list[dict[str, Any]]) -> dict[str, Any]:
+    """Drives as one (precision weighted by queries), for every kind all of them have."""
     n = sum(d["n"] for d in drives)
     out: dict[str, Any] = {"n": n}
-    for kind in ("single", "sequence"):
+    for kind in (k for k in KINDS if all(k in d for d in drives)):
         out[kind] = {t: sum(d[kind][t] * d["n"] for d in drives) / n for t in drives[0][kind]}
     return out
 
@@ -141,10 +188,12 @@ def pool_folds(rows: list[dict[str, Any]]) -> dict[str, Any]:
     if len(rows) > 1 and "all" not in drives:
         drives["all"] = _pooled(list(drives.values()))
     mean = {k: float(np.mean([r[k] for r in rows])) for k in
-            ("fit_seconds", "query_us", "sequence_us_per_frame", "paper_bytes", "actual_bytes",
-             "actual_bytes_per_place")}  # fmt: skip
-    return {**{k: first[k] for k in ("method", "family", "params", "n_places", "footprint")},
-            **mean, "folds": [r["fold"] for r in rows], "drives": drives}  # fmt: skip
+            ("fit_seconds", "query_us", "sequence_us_per_frame", "adapt_us_per_frame",
+             "paper_bytes", "actual_bytes", "actual_bytes_per_place")
+            if all(k in r for r in rows)}  # fmt: skip
+    kept = ("method", "family", "params", "n_places", "footprint", "adaptation")
+    return {**{k: first[k] for k in kept if k in first}, **mean,
+            "folds": [r["fold"] for r in rows], "drives": drives}  # fmt: skip
 
 
 def add_ratios(results: list[dict[str, Any]]) -> None:
@@ -155,7 +204,8 @@ def add_ratios(results: list[dict[str, Any]]) -> None:
 
 
 def run_protocol(ds: Dataset, protocol: str, methods: list[QualityMethod], config: SequenceConfig,
-                 progress: Progress) -> dict[str, Any]:  # fmt: skip
+                 progress: Progress,
+                 adaptation: AdaptationConfig | None = None) -> dict[str, Any]:  # fmt: skip
     folds = folds_for(protocol, ds.reference, ds.query, ds.ground_truth)
     results, errors = [], []
     for method in methods:
@@ -163,7 +213,8 @@ def run_protocol(ds: Dataset, protocol: str, methods: list[QualityMethod], confi
         try:
             for fold in folds:
                 progress(f"{ds.name} {protocol}: {method.name} ({fold.name})")
-                per_fold.append(measure(method, fold, ds.query, ds.ground_truth, config))
+                per_fold.append(measure(method, fold, ds.query, ds.ground_truth, config,
+                                        adaptation))  # fmt: skip
         except GridplaceError as exc:
             errors.append({"method": method.name, "family": method.family, "error": str(exc)})
             continue
@@ -185,8 +236,10 @@ def run_quality_bench(
     progress: Progress = lambda _m: None,
     yu_trainer: str = "ridge",
     argv: list[str] | None = None,
+    adaptation: AdaptationConfig | None = None,
 ) -> dict[str, Any]:
     """Every protocol × method on every descriptor set; the report is written to ``out``."""
+    adaptation = adaptation or AdaptationConfig()
     bad = [p for p in protocols if p not in PROTOCOLS]
     if bad:
         raise InvalidInputError(f"unknown protocol(s) {bad}; choose from {PROTOCOLS}")
@@ -195,17 +248,29 @@ def run_quality_bench(
     report: dict[str, Any] = {
         "benchmark": "quality", "context": run_context(argv), "tolerances": list(TOLERANCES),
         "headline_tolerance": HEADLINE, "sequence_filter": config.model_dump(),
-        "tuned_where": TUNED_WHERE, "sets": [],
+        "adaptation": adaptation_summary(adaptation), "tuned_where": TUNED_WHERE, "sets": [],
     }  # fmt: skip
     for ds in sets:
         chosen = catalogue(ds.n_features, ds.n_frames, methods, yu_trainer)
         entry = {"dataset": ds.describe(), "protocols": {}}
         report["sets"].append(entry)
         for protocol in protocols:
-            entry["protocols"][protocol] = run_protocol(ds, protocol, chosen, config, progress)
+            entry["protocols"][protocol] = run_protocol(ds, protocol, chosen, config, progress,
+                                                        adaptation)  # fmt: skip
             _write(report, out, time.perf_counter() - start)  # a long run keeps what it measured
     _write(report, out, time.perf_counter() - start)
     return report
+
+
+def adaptation_summary(config: AdaptationConfig) -> dict[str, Any]:
+    """What the report's ``*_adapted`` figures are (each result says whose statistics)."""
+    return {
+        "config": config.model_dump(),
+        "drives": "each drive adapted on its own, in drive order, by a fresh adapter",
+        "statistics": "'model': the fitted model's route statistics (its normaliser); "
+                      "'training rows': column statistics of the fold's training rows, for "
+                      "models that keep none",
+    }  # fmt: skip
 
 
 def _write(report: dict[str, Any], out: Path, elapsed: float) -> None:
@@ -237,6 +302,9 @@ def merge_reports(reports: list[dict[str, Any]], methods: str = "all") -> dict[s
         raise InvalidInputError("nothing to merge")
     runs = [run for r in reports for run in r.get("runs", [r["context"]])]  # merged ones too
     merged: dict[str, Any] = {**reports[0], "sets": [], "runs": runs}
+    adapted = [r["adaptation"] for r in reports if "adaptation" in r]
+    if adapted:  # reports from before adaptation have none (their rows show no adapted figures)
+        merged["adaptation"] = adapted[-1]
     by_name: dict[str, dict[str, Any]] = {}
     for rep in reports:
         for entry in rep["sets"]:

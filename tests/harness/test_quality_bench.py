@@ -3,6 +3,7 @@ reported, the splits never mix test rows into training, and the CLI flags work."
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -11,15 +12,27 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from service.bench.quality_bench import descriptor_pair, load_sets, run_quality_bench
-from service.bench.quality_protocols import folds_for, query_halves
-from service.bench.quality_report import plot_frontier
+from service.bench.quality_bench import (
+    KINDS,
+    descriptor_pair,
+    drive_adapter,
+    load_sets,
+    measure,
+    merge_reports,
+    run_quality_bench,
+)
+from service.bench.quality_protocols import cross_folds, folds_for, query_halves
+from service.bench.quality_report import markdown_tables, plot_frontier
 from service.cli import app
 from service.encoding import ExactNN
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, route_statistics
+from service.encoding.base import precision_at
+from service.encoding.normalization import Normalizer
 from service.encoding.sequence import SequenceConfig
 from service.encoding.synthetic import smooth_route
 from service.errors import InvalidInputError, InvalidParameterError
-from service.harness.quality_methods import PlacePooled, catalogue, fit_places
+from service.harness.projected_nn import ProjectedNN
+from service.harness.quality_methods import PlacePooled, QualityMethod, catalogue, fit_places
 
 N, D = 300, 16
 METHODS = "exact_nn,pq-m16,yu,nn-pca64,ridge,robust"
@@ -167,3 +180,107 @@ def test_merged_runs_put_every_method_side_by_side(folder: Path, tmp_path: Path)
     assert res.exit_code == 0, res.output
     rows = json.loads(merged.read_text())["sets"][0]["protocols"]["cross"]["results"]
     assert [r["method"] for r in rows] == ["exact-nn", "yu"]
+
+
+# -- appearance adaptation ------------------------------------------------------------------
+ADAPTED = ("single_adapted", "sequence_adapted")
+
+
+def test_every_drive_is_also_measured_adapted_and_pooled(report: dict[str, Any]) -> None:
+    assert report["adaptation"]["config"] == AdaptationConfig().model_dump()
+    (entry,) = report["sets"]
+    for block in entry["protocols"].values():
+        for r in block["results"]:
+            assert r["adaptation"]["config"] == AdaptationConfig().model_dump()
+            assert r["adapt_us_per_frame"] > 0
+            for d in r["drives"].values():
+                for kind in ADAPTED:
+                    assert list(d[kind]) == ["0", "2", "5", "10"]
+                    assert all(0.0 <= p <= 1.0 for p in d[kind].values())
+    used = {(key, r["method"]): r["adaptation"]["statistics"]
+            for key, block in entry["protocols"].items() for r in block["results"]}  # fmt: skip
+    assert used["cross", "robust"] == used["cross", "exact-nn"] == "model"
+    assert used["cross", "nn-pca64"] == "training rows"  # ProjectedNN keeps no normaliser
+    assert used["multi", "exact-nn"] == "training rows"  # pooled per place: the wrapper has none
+    assert used["multi", "robust"] == "model"
+    # (b) pools each fold's unseen half, adapted figures like the others
+    robust = next(r for r in entry["protocols"]["multi"]["results"] if r["method"] == "robust")
+    a, b, pooled = (robust["drives"][k] for k in ("A", "B", "all"))
+    for kind in KINDS:
+        for t in ("0", "5"):
+            want = (a[kind][t] * a["n"] + b[kind][t] * b["n"]) / (a["n"] + b["n"])
+            assert pooled[kind][t] == pytest.approx(want)
+
+
+def _shifted_route(seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """A route whose query drive is every column rescaled and shifted (another season)."""
+    route = smooth_route(200, 12, seed=seed)
+    rng = np.random.default_rng(0)
+    query = route.query * rng.uniform(0.3, 3.0, 12) + rng.normal(0.0, 3.0, 12)
+    return route.reference, query.astype(np.float32)
+
+
+def test_a_model_without_statistics_is_adapted_from_its_training_rows() -> None:
+    reference, query = _shifted_route()
+    truth = np.arange(query.shape[0])
+    (fold,) = cross_folds(reference, query.shape[0])
+    method = QualityMethod("nn-pca8", "exact_nn_projected", lambda: ProjectedNN(8))
+    row = measure(method, fold, query, truth, SequenceConfig())
+    assert row["adaptation"]["statistics"] == "training rows"
+    model = ProjectedNN(8).fit(reference)
+    assert route_statistics(model) is None
+    adapter, used = drive_adapter(model, fold, AdaptationConfig())
+    stats = Normalizer.fit(reference)
+    assert used == "training rows" and np.allclose(adapter.route_mean, stats.mean)
+    assert np.allclose(adapter.route_scale, stats.scale)
+    for name, drive in fold.drives.items():  # each drive from a fresh adapter, in order
+        rows = AppearanceAdapter.for_reference(reference).transform(query[drive])
+        pred = model.localize(rows).index
+        assert row["drives"][name]["single_adapted"]["2"] == precision_at(pred, truth[drive], 2)
+    # the shift is what adaptation removes: it recovers most of the drive
+    whole = row["drives"]["all"]
+    assert whole["single_adapted"]["2"] > whole["single"]["2"] + 0.3
+
+
+def test_a_model_with_statistics_is_adapted_from_its_own() -> None:
+    reference, query = _shifted_route()
+    (fold,) = cross_folds(reference, query.shape[0])
+    (method,) = catalogue(12, 200, "robust")
+    model = method.build().fit(reference)
+    adapter, used = drive_adapter(model, fold, AdaptationConfig(alpha=0.1))
+    assert used == "model" and adapter.config.alpha == 0.1
+    assert np.array_equal(adapter.route_mean, route_statistics(model).mean.astype(np.float64))
+
+
+def _before_adaptation(report: dict[str, Any]) -> dict[str, Any]:
+    """``report`` as the bench wrote it before drives were measured adapted."""
+    old = copy.deepcopy(report)
+    old.pop("adaptation")
+    for entry in old["sets"]:
+        for block in entry["protocols"].values():
+            for r in block["results"]:
+                del r["adaptation"], r["adapt_us_per_frame"]
+                for d in r["drives"].values():
+                    for kind in ADAPTED:
+                        del d[kind]
+    return old
+
+
+def test_old_reports_without_adapted_figures_still_merge(report: dict[str, Any],
+                                                         tmp_path: Path) -> None:  # fmt: skip
+    old = _before_adaptation(report)
+    alone = merge_reports([old])
+    assert "adaptation" not in alone and "No adapted figures" in markdown_tables(alone)
+    fresh = copy.deepcopy(report)
+    for block in fresh["sets"][0]["protocols"].values():
+        block["results"] = [r for r in block["results"] if r["method"] == "exact-nn"]
+    merged = merge_reports([old, fresh])
+    assert merged["adaptation"] == report["adaptation"]
+    rows = {r["method"]: r for r in merged["sets"][0]["protocols"]["cross"]["results"]}
+    assert "single_adapted" in rows["exact-nn"]["drives"]["B"]
+    assert "single_adapted" not in rows["robust"]["drives"]["B"]
+    table = markdown_tables(merged)
+    robust_line = next(line for line in table.splitlines() if line.startswith("| `robust` |"))
+    nn_line = next(line for line in table.splitlines() if line.startswith("| `exact-nn` |"))
+    assert robust_line.count("—") == 6 and "—" not in nn_line  # (a): 3 drives × 2 kinds
+    assert plot_frontier(merged, tmp_path / "m.png").is_file()
