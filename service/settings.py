@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+if TYPE_CHECKING:
+    from service.encoding.adaptation import AdaptationConfig
 
 
 class Settings(BaseSettings):
@@ -81,6 +84,17 @@ class Settings(BaseSettings):
         0.02, gt=0.0, le=1.0,  # service.encoding.adaptation.DEFAULT_ALPHA (a test keeps them equal)
         description="weight of the newest frame in a vehicle's running statistics",
     )
+    adaptation_novelty: float = Field(
+        1.0, ge=0.0, le=100.0,  # service.encoding.adaptation.DEFAULT_NOVELTY
+        description="a vehicle's frame updates its running statistics only if it differs from "
+        "the last one that did by this many running variances per column (0: every frame)",
+    )
+
+    def adaptation(self) -> AdaptationConfig:
+        """The appearance adaptation parameters of drives served by this process."""
+        from service.encoding.adaptation import AdaptationConfig
+
+        return AdaptationConfig(alpha=self.adaptation_alpha, novelty=self.adaptation_novelty)
     serve_blas_threads: int = Field(
         1, ge=0,
         description="BLAS threads of the serving process (0 = the library's default); one "

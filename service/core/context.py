@@ -16,7 +16,6 @@ from service.core.localization import LocalizationService
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import ModelStore
 from service.core.vehicle_adapters import VehicleAdapters
-from service.encoding.adaptation import AdaptationConfig
 from service.settings import Settings
 
 if TYPE_CHECKING:
@@ -40,7 +39,7 @@ class ServiceContext:
 
     def __post_init__(self) -> None:
         if self.vehicles is None:
-            self.vehicles = VehicleAdapters(AdaptationConfig(alpha=self.settings.adaptation_alpha))
+            self.vehicles = VehicleAdapters(self.settings.adaptation())
 
     def start(self) -> None:
         """Start the hot-swap poller (its first pass loads every active version) and the

@@ -21,7 +21,7 @@ import numpy as np
 from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
 from service.encoding import check_descriptors
-from service.encoding.adaptation import AdaptationConfig, adapt_drive, route_statistics
+from service.encoding.adaptation import adapt_drive, route_statistics
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
 
@@ -125,8 +125,7 @@ class SequenceLocalizer:
             )
         adapted = self.adapts(loaded, adapt)
         if adapted:
-            alpha = self.service.settings.adaptation_alpha
-            Q = adapt_drive(loaded.model, Q, AdaptationConfig(alpha=alpha))
+            Q = adapt_drive(loaded.model, Q, self.service.settings.adaptation())
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
         track = sequence_localize(loaded.model, Q, config)
         return SequenceResult(

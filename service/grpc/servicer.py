@@ -33,7 +33,6 @@ from service.api.auth import check_admin
 from service.core.batching import MAX_BATCHED_BYTES
 from service.core.context import ServiceContext
 from service.core.streams import FleetStream
-from service.encoding.adaptation import AdaptationConfig
 from service.encoding.sequence import SequenceConfig
 from service.errors import EmptyInputError, GridplaceError, PayloadTooLargeError
 from service.grpc import messages
@@ -151,7 +150,7 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
     ) -> AsyncIterator[pb.StreamResponse]:
         settings = self.ctx.settings
         stream = FleetStream(self.service, self.sequence,
-                             adaptation=AdaptationConfig(alpha=settings.adaptation_alpha),
+                             adaptation=settings.adaptation(),
                              adapt_by_default=settings.drive_adaptation)  # fmt: skip
         batcher = self.ctx.batcher
         if batcher is None:

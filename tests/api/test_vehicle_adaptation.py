@@ -106,4 +106,4 @@ def test_adapters_restart_with_the_version_and_forget_the_least_recent() -> None
     assert np.allclose(restarted, Q[10:11], atol=1e-5)
     adapters.adapt(v1, "b", Q[:1])
     adapters.adapt(v1, "c", Q[:1])
-    assert len(adapters) == 2 and adapters.nbytes == 2 * 16 * 8
+    assert len(adapters) == 2 and adapters.nbytes == 2 * 24 * 8

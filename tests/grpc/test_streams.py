@@ -132,8 +132,8 @@ def test_a_map_without_route_statistics_is_not_adapted(ctx: tuple[ServiceContext
 
 def test_adapters_are_dropped_least_recent_first(ctx: tuple[ServiceContext, np.ndarray]) -> None:
     context, Q = ctx
-    stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * 16 * D)
-    for vehicle in ("a", "b", "c"):  # one adapter holds a float64 mean and variance per column
+    stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * 24 * D)
+    for vehicle in ("a", "b", "c"):  # one adapter: a float64 mean, variance and last frame per column
         stream.answer(frame(Q, 10, vehicle))
     assert stream.adapted_vehicles == 2
     limited = FleetStream(context.service, adapt_by_default=True, max_vehicles=1)

@@ -22,10 +22,11 @@ from service.errors import InvalidParameterError
 finite = st.floats(-100, 100, allow_nan=False, allow_infinity=False, width=32)
 
 
-def _adapter(d: int, alpha: float, seed: int = 0) -> AppearanceAdapter:
+def _adapter(d: int, alpha: float, seed: int = 0, novelty: float = 0.0) -> AppearanceAdapter:
+    """An adapter over random route statistics (``novelty=0``: every frame is learnt from)."""
     rng = np.random.default_rng(seed)
     return AppearanceAdapter(rng.normal(size=d), rng.uniform(0.5, 2.0, size=d),
-                             AdaptationConfig(alpha=alpha))  # fmt: skip
+                             AdaptationConfig(alpha=alpha, novelty=novelty))  # fmt: skip
 
 
 def _closed_form(a: AppearanceAdapter, X: np.ndarray) -> np.ndarray:
@@ -85,7 +86,7 @@ def test_a_drive_is_standardised_by_its_own_statistics() -> None:
     rng = np.random.default_rng(3)
     mu, sigma = np.array([0.0, 10.0]), np.array([1.0, 2.0])
     drive = rng.normal(size=(4000, 2)) * np.array([5.0, 0.1]) + np.array([50.0, -3.0])
-    a = AppearanceAdapter(mu, sigma, AdaptationConfig(alpha=0.02))
+    a = AppearanceAdapter(mu, sigma, AdaptationConfig(alpha=0.02, novelty=0.0))
     z = (a.transform(drive)[2000:] - mu) / sigma  # the model's z-score, once the drive is learnt
     assert np.allclose(z.mean(axis=0), 0.0, atol=0.15)
     assert np.allclose(z.std(axis=0), 1.0, atol=0.15)
@@ -98,7 +99,40 @@ def test_reset_forgets_the_drive_and_constant_columns_stay_finite() -> None:
     assert np.isfinite(out).all()
     assert np.allclose(out[-1], a.route_mean)  # nothing left to stand out
     a.reset()
+    assert a.learnt == 0
     assert a.frames == 0 and np.allclose(a.transform(X[:1]), X[:1])
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    X=arrays(np.float64, st.tuples(st.integers(2, 12), st.integers(1, 5)), elements=finite),
+    at=st.integers(0, 11),
+    repeats=st.integers(1, 30),
+)
+def test_a_repeated_scene_does_not_move_the_statistics(X: np.ndarray, at: int, repeats: int) -> None:
+    """A stopped vehicle: its frame sent again and again is answered the same way each time,
+    and the drive after the stop is answered as if the stop had not happened."""
+    at = min(at, X.shape[0] - 1)
+    stopped = np.vstack([X[: at + 1], np.repeat(X[at : at + 1], repeats, axis=0), X[at + 1 :]])
+    plain = _adapter(X.shape[1], 0.2, novelty=1.0).transform(X)
+    a = _adapter(X.shape[1], 0.2, novelty=1.0)
+    got = a.transform(stopped)
+    assert np.array_equal(got[: at + 1], plain[: at + 1])
+    assert np.array_equal(got[at + 1 + repeats :], plain[at + 1 :])
+    assert np.all(got[at + 1 : at + 1 + repeats] == got[at + 1])  # the stop answered alike
+    assert a.frames == stopped.shape[0] and a.learnt <= X.shape[0]
+
+
+def test_only_new_scenes_are_learnt_from() -> None:
+    rng = np.random.default_rng(6)
+    scenes = rng.normal(size=(40, 8))
+    dense = np.repeat(scenes, 5, axis=0) + rng.normal(scale=0.01, size=(200, 8))  # 5 shots each
+    a = AppearanceAdapter(np.zeros(8), np.ones(8))  # default novelty
+    a.transform(dense)
+    assert 30 <= a.learnt <= 40  # about one frame per scene (two unrelated ones differ by ≈ 2)
+    every = AppearanceAdapter(np.zeros(8), np.ones(8), AdaptationConfig(novelty=0.0))
+    every.transform(dense)
+    assert every.learnt == 200
 
 
 def test_a_wild_frame_is_answered_but_not_learnt_from() -> None:
@@ -136,7 +170,8 @@ def test_rows_of_another_width_are_refused() -> None:
 
 
 def test_the_server_setting_defaults_to_the_library_default() -> None:
-    from service.encoding.adaptation import DEFAULT_ALPHA
+    from service.encoding.adaptation import DEFAULT_ALPHA, DEFAULT_NOVELTY
     from service.settings import Settings
 
-    assert Settings().adaptation_alpha == DEFAULT_ALPHA and Settings().drive_adaptation
+    assert Settings().adaptation() == AdaptationConfig(alpha=DEFAULT_ALPHA, novelty=DEFAULT_NOVELTY)
+    assert Settings().drive_adaptation

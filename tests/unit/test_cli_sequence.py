@@ -144,7 +144,7 @@ def test_evaluate_adapts_the_queries_unless_told_not_to(files: dict[str, Path]) 
     Q = np.load(files["query"])
     code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "2", "--json")
     on = json.loads(stdout)
-    assert code == 0 and on["adaptation"] == {"alpha": 0.02}
+    assert code == 0 and on["adaptation"] == {"alpha": 0.02, "novelty": 1.0}
     truth = np.arange(Q.shape[0])
     adapted = model.localize(adapt_drive(model, Q)).index
     assert on["precision"] == pytest.approx(np.mean(np.abs(adapted - truth) <= 2))
