@@ -85,9 +85,14 @@ def adaptation_note(report: dict[str, Any]) -> str:
     if info is None:
         return "No adapted figures in this report."
     return (
-        f"Adapted: {info['drives']}, alpha = {info['config']['alpha']}, from each method's "
+        f"Adapted: {info['drives']}, {_config_text(info['config'])}, from each method's "
         "route statistics, or its training rows' where it keeps none; — = not measured."
     )
+
+
+def _config_text(config: dict[str, Any]) -> str:
+    """``alpha = 0.02, novelty = 1.0`` (every adaptation parameter the report recorded)."""
+    return ", ".join(f"{k} = {v}" for k, v in config.items())
 
 
 def headline_drive(block: dict[str, Any]) -> str:
@@ -171,8 +176,8 @@ def plot_frontier(report: dict[str, Any], path: Path) -> Path:
         ax.axis("off")
     ctx = report["context"]
     foot = f"{ctx['date']} · {ctx['machine']['cores']} cores · gridplace {ctx['git_commit']}"
-    alpha = report.get("adaptation", {}).get("config", {}).get("alpha")
-    adapted = f" · adapted: alpha {alpha}" if alpha is not None else ""
+    config = (report.get("adaptation") or {}).get("config")
+    adapted = f" · adapted: {_config_text(config)}" if config else ""
     fig.text(0.01, 0.005, f"{foot} · filter: HMM defaults{adapted}", fontsize=7, color="0.35")
     fig.tight_layout(rect=(0, 0.02, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -141,12 +141,12 @@ class AppearanceAdapter:
         alpha, mean, var = self.config.alpha, self._mean, self._var
         mu, sigma = self.route_mean, self.route_scale
         novelty, floor = self.config.novelty, self._floor
-        delta, work = np.empty_like(mean), np.empty_like(mean)  # no temporaries per frame
+        delta, work, scale = (np.empty_like(mean) for _ in range(3))  # reused for every frame
         for t in range(X.shape[0]):
             x = X[t]
             np.subtract(x, mean, out=delta)
-            np.maximum(var, floor, out=work)
-            np.sqrt(work, out=work)
+            np.maximum(var, floor, out=scale)  # the variance a column is divided by
+            np.sqrt(scale, out=work)
             np.divide(delta, work, out=work)
             work *= sigma
             np.add(work, mu, out=out[t])
@@ -155,10 +155,13 @@ class AppearanceAdapter:
             if novelty > 0 and self._last is not None:
                 np.subtract(x, self._last, out=work)
                 work *= work
-                work /= np.maximum(var, floor)
+                work /= scale
                 if work.mean() < novelty:
                     continue  # the same scene again (a stopped vehicle, a dense video)
-            self._last = x.copy()
+            if self._last is None:
+                self._last = x.copy()
+            else:
+                self._last[:] = x
             self._learnt += 1
             np.multiply(delta, alpha, out=work)  # exponentially weighted mean and variance
             mean += work
