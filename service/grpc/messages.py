@@ -76,6 +76,7 @@ def version_info(v: VersionInfo) -> pb.VersionInfo:
         sha256=v.sha256, artifact_bytes=v.artifact_bytes,
         paper_bytes=int(v.footprint.get("paper_bytes", 0)),
         image_extractor=v.extractor is not None, created_at=_timestamp(v.created_at),
+        n_traversals=v.n_traversals,
     )  # fmt: skip
 
 

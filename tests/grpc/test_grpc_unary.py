@@ -122,6 +122,7 @@ def test_list_and_get_maps_are_admin_calls(served: Served) -> None:
     assert route.active.n_frames == served.reference.shape[0] and route.active.n_features == 64
     assert route.active.paper_bytes > 0 and len(route.active.sha256) == 64
     assert not route.active.image_extractor and route.created_at.seconds > 0
+    assert route.active.n_traversals == 1
     assert not parked.HasField("active_version") and list(parked.versions) == [1]
     assert anon.code() == anon_get.code() == grpc.StatusCode.UNAUTHENTICATED
     assert missing.code() == grpc.StatusCode.NOT_FOUND

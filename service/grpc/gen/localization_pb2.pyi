@@ -132,7 +132,7 @@ class GetMapRequest(_message.Message):
     def __init__(self, name: _Optional[str] = ...) -> None: ...
 
 class VersionInfo(_message.Message):
-    __slots__ = ("version", "n_frames", "n_features", "kind", "sha256", "artifact_bytes", "paper_bytes", "image_extractor", "created_at")
+    __slots__ = ("version", "n_frames", "n_features", "kind", "sha256", "artifact_bytes", "paper_bytes", "image_extractor", "created_at", "n_traversals")
     VERSION_FIELD_NUMBER: _ClassVar[int]
     N_FRAMES_FIELD_NUMBER: _ClassVar[int]
     N_FEATURES_FIELD_NUMBER: _ClassVar[int]
@@ -142,6 +142,7 @@ class VersionInfo(_message.Message):
     PAPER_BYTES_FIELD_NUMBER: _ClassVar[int]
     IMAGE_EXTRACTOR_FIELD_NUMBER: _ClassVar[int]
     CREATED_AT_FIELD_NUMBER: _ClassVar[int]
+    N_TRAVERSALS_FIELD_NUMBER: _ClassVar[int]
     version: int
     n_frames: int
     n_features: int
@@ -151,7 +152,8 @@ class VersionInfo(_message.Message):
     paper_bytes: int
     image_extractor: bool
     created_at: _timestamp_pb2.Timestamp
-    def __init__(self, version: _Optional[int] = ..., n_frames: _Optional[int] = ..., n_features: _Optional[int] = ..., kind: _Optional[str] = ..., sha256: _Optional[str] = ..., artifact_bytes: _Optional[int] = ..., paper_bytes: _Optional[int] = ..., image_extractor: _Optional[bool] = ..., created_at: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
+    n_traversals: int
+    def __init__(self, version: _Optional[int] = ..., n_frames: _Optional[int] = ..., n_features: _Optional[int] = ..., kind: _Optional[str] = ..., sha256: _Optional[str] = ..., artifact_bytes: _Optional[int] = ..., paper_bytes: _Optional[int] = ..., image_extractor: _Optional[bool] = ..., created_at: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., n_traversals: _Optional[int] = ...) -> None: ...
 
 class MapInfo(_message.Message):
     __slots__ = ("name", "active_version", "versions", "created_at", "serving_version", "active")
