@@ -28,9 +28,10 @@ from service.api.schemas import (
     body_doc,
 )
 from service.core.localization import LocalizationService, LocalizeResult, decode_float32
+from service.core.streams import one_descriptor
 from service.core.vehicle_adapters import answer_vehicle
 from service.encoding import check_descriptors
-from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
+from service.errors import EmptyInputError, InvalidInputError
 from service.wire import (
     BatchLocalization,
     BatchLocalizeRequest,
@@ -160,11 +161,7 @@ def _localize_vehicle(request: Request, name: str, req: LocalizeRequest | Vehicl
     else:
         kind = "descriptor"
         Q = check_descriptors(_descriptor_row(req), n_features=loaded.n_features, what="descriptor")
-    if Q.shape[0] != 1:
-        raise DimensionMismatchError(
-            f"a query carries one descriptor of d={loaded.n_features} values; got "
-            f"{Q.shape[0] * loaded.n_features}", expected=loaded.n_features, got=int(Q.size),
-        )  # fmt: skip
+    Q = one_descriptor(Q, loaded, "a query")
     return answer_vehicle(svc, ctx.vehicles, loaded, Q, start, kind, req.vehicle_id, req.adaptation)
 
 

@@ -30,12 +30,7 @@ from service.encoding import (
     load_npy,
     save_model,
 )
-from service.encoding.adaptation import (
-    AdaptationConfig,
-    AppearanceAdapter,
-    adapt_drive,
-    route_statistics,
-)
+from service.encoding.adaptation import AdaptationConfig, adapt_drive, adapts
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
 from service.encoding.presets import DEFAULT_PRESET, describe_presets
@@ -157,11 +152,8 @@ AdaptOpt = Annotated[
 
 
 def adaptation_for(model: Any, adapt: bool | None) -> AdaptationConfig | None:
-    """``--adapt/--no-adapt`` for ``model``: explicit ``--adapt`` needs route statistics."""
-    if adapt is False or (adapt is None and route_statistics(model) is None):
-        return None
-    AppearanceAdapter.for_model(model)  # refuses a model without statistics, naming why
-    return AdaptationConfig()
+    """``--adapt/--no-adapt`` for ``model`` (on by default; ``--adapt`` needs route statistics)."""
+    return AdaptationConfig() if adapts(model, adapt, default=True) else None
 
 
 def sequence_config(items: list[str] | None) -> SequenceConfig:

@@ -21,9 +21,9 @@ import numpy as np
 from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
 from service.encoding import check_descriptors
-from service.encoding.adaptation import adapt_drive, route_statistics
+from service.encoding.adaptation import adapt_drive, adapts
 from service.encoding.sequence import SequenceConfig, sequence_localize
-from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
+from service.errors import EmptyInputError, InvalidInputError
 
 MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
 MAX_SEQUENCE_WORK = 2_000_000_000  # query frames × route frames per request (filter time)
@@ -97,17 +97,8 @@ class SequenceLocalizer:
     def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
         """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
         statistics is refused; the default then goes without)."""
-        wanted = self.service.settings.drive_adaptation if adapt is None else adapt
-        if not wanted:
-            return False
-        if route_statistics(loaded.model) is not None:
-            return True
-        if adapt:
-            raise InvalidParameterError(
-                f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
-                "and keeps no route statistics to adapt to; send adaptation=false"
-            )
-        return False
+        return adapts(loaded.model, adapt, self.service.settings.drive_adaptation,
+                      f"map {loaded.map!r} version {loaded.version}")  # fmt: skip
 
     def run(
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,

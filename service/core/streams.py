@@ -23,7 +23,6 @@ restarts the filter. Filters (adapters) of the least recently seen vehicles are 
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,14 +30,10 @@ import numpy as np
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
 from service.core.sequences import chunk_of
-from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, route_statistics
+from service.core.vehicle_state import VehicleState
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, adapts
 from service.encoding.sequence import SequenceConfig, SequenceFilter
-from service.errors import (
-    DimensionMismatchError,
-    EmptyInputError,
-    InvalidInputError,
-    InvalidParameterError,
-)
+from service.errors import DimensionMismatchError, EmptyInputError, InvalidInputError
 
 MAX_VEHICLE_ID = 128
 MAX_VEHICLES_PER_STREAM = 1024
@@ -78,18 +73,15 @@ class FrameAnswer:
     adapted: bool = False  # standardised by the vehicle's running statistics first
 
 
-@dataclass
-class _Track:
-    map: str
-    version: int
-    filter: SequenceFilter
-
-
-@dataclass
-class _Adapted:
-    map: str
-    version: int
-    adapter: AppearanceAdapter
+def one_descriptor(Q: np.ndarray, loaded: LoadedModel, what: str) -> np.ndarray:
+    """``Q`` when it is one row (a frame, a single query), else a dimension error naming it."""
+    if Q.shape[0] != 1:
+        raise DimensionMismatchError(
+            f"{what} carries one descriptor of d={loaded.n_features} values; "
+            f"got {Q.shape[0] * loaded.n_features}",
+            expected=loaded.n_features, got=int(Q.size),
+        )  # fmt: skip
+    return Q
 
 
 class FleetStream:
@@ -114,15 +106,15 @@ class FleetStream:
         self.adaptation = adaptation or AdaptationConfig()
         self.adapt_by_default = adapt_by_default
         self.max_adapter_bytes = max_adapter_bytes
-        self._tracks: OrderedDict[str, _Track] = OrderedDict()
-        self._bytes = 0
-        self._adapters: OrderedDict[str, _Adapted] = OrderedDict()
-        self._adapter_bytes = 0
+        self._filters: VehicleState[str, SequenceFilter] = VehicleState(
+            max_vehicles, max_filter_bytes, lambda f: f.nbytes)  # fmt: skip
+        self._adapters: VehicleState[str, AppearanceAdapter] = VehicleState(
+            max_vehicles, max_adapter_bytes, lambda a: a.nbytes)  # fmt: skip
 
     @property
     def vehicles(self) -> int:
         """Vehicles with filter history in this stream."""
-        return len(self._tracks)
+        return len(self._filters)
 
     @property
     def adapted_vehicles(self) -> int:
@@ -154,12 +146,15 @@ class FleetStream:
         raw_index, raw_conf = int(raw.index[0]), float(raw.confidence[0])
         index, chunk, conf, used = raw_index, int(raw.chunk[0]), raw_conf, 1
         if frame.sequence_filter:
-            track = self._track(frame, loaded)
-            estimate = track.filter.update(loaded.model.frame_log_scores(Q)[0])
+            track = self._filters.current(
+                frame.vehicle_id, loaded, lambda: SequenceFilter(loaded.n_frames, self.config),
+                restart=frame.reset,
+            )  # fmt: skip
+            estimate = track.update(loaded.model.frame_log_scores(Q)[0])
             index, conf, used = estimate.index, estimate.confidence, estimate.frames_used
             chunk = int(chunk_of(loaded, index))
         else:
-            self._drop(frame.vehicle_id)
+            self._filters.drop(frame.vehicle_id)
         return FrameAnswer(
             frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
             frame.sequence_filter, raw_index, raw_conf, used,
@@ -168,39 +163,14 @@ class FleetStream:
 
     def _adapts(self, frame: Frame, loaded: LoadedModel) -> bool:
         """Whether ``frame`` is adapted on ``loaded`` (refused when it asks and cannot be)."""
-        wanted = self.adapt_by_default if frame.adapt is None else frame.adapt
-        if not wanted:
-            return False
-        if route_statistics(loaded.model) is not None:
-            return True
-        if frame.adapt:
-            raise InvalidParameterError(
-                f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
-                "and keeps no route statistics to adapt to; send the frame without adaptation"
-            )
-        return False
+        return adapts(loaded.model, frame.adapt, self.adapt_by_default,
+                      f"map {loaded.map!r} version {loaded.version}")  # fmt: skip
 
     def _adapter(self, frame: Frame, loaded: LoadedModel) -> AppearanceAdapter:
-        entry = self._adapters.get(frame.vehicle_id)
-        if (entry is None or frame.reset or entry.map != loaded.map
-                or entry.version != loaded.version):  # fmt: skip
-            self._forget_adapter(frame.vehicle_id)
-            entry = _Adapted(loaded.map, loaded.version,
-                             AppearanceAdapter.for_model(loaded.model, self.adaptation))  # fmt: skip
-            self._adapters[frame.vehicle_id] = entry
-            self._adapter_bytes += entry.adapter.nbytes
-        self._adapters.move_to_end(frame.vehicle_id)
-        while len(self._adapters) > 1 and (
-            len(self._adapters) > self.max_vehicles or self._adapter_bytes > self.max_adapter_bytes
-        ):
-            _, old = self._adapters.popitem(last=False)  # the least recently seen vehicle
-            self._adapter_bytes -= old.adapter.nbytes
-        return entry.adapter
-
-    def _forget_adapter(self, vehicle_id: str) -> None:
-        entry = self._adapters.pop(vehicle_id, None)
-        if entry is not None:
-            self._adapter_bytes -= entry.adapter.nbytes
+        return self._adapters.current(
+            frame.vehicle_id, loaded,
+            lambda: AppearanceAdapter.for_model(loaded.model, self.adaptation), restart=frame.reset,
+        )  # fmt: skip
 
     def _query(self, loaded: LoadedModel, frame: Frame) -> np.ndarray:
         if frame.descriptor is not None and frame.image is not None:
@@ -210,37 +180,10 @@ class FleetStream:
             return self.service.query_images(loaded, [(label, frame.image)])
         if frame.descriptor is None:
             raise EmptyInputError("the frame has neither a descriptor nor an image")
-        Q = self.service.query_bytes(loaded, frame.descriptor)
-        if Q.shape[0] != 1:
-            raise DimensionMismatchError(
-                f"a stream frame carries one descriptor of d={loaded.n_features} float32 values; "
-                f"got {Q.shape[0] * loaded.n_features}",
-                expected=loaded.n_features, got=int(Q.size),
-            )  # fmt: skip
-        return Q
+        return one_descriptor(self.service.query_bytes(loaded, frame.descriptor), loaded,
+                              "a stream frame")  # fmt: skip
 
     @property
     def filter_bytes(self) -> int:
         """Memory the vehicles' filters hold together."""
-        return self._bytes
-
-    def _drop(self, vehicle_id: str) -> None:
-        track = self._tracks.pop(vehicle_id, None)
-        if track is not None:
-            self._bytes -= track.filter.nbytes
-
-    def _track(self, frame: Frame, loaded: LoadedModel) -> _Track:
-        track = self._tracks.get(frame.vehicle_id)
-        if (track is None or frame.reset or track.map != loaded.map
-                or track.version != loaded.version):  # fmt: skip
-            self._drop(frame.vehicle_id)
-            track = _Track(loaded.map, loaded.version, SequenceFilter(loaded.n_frames, self.config))
-            self._tracks[frame.vehicle_id] = track
-            self._bytes += track.filter.nbytes
-        self._tracks.move_to_end(frame.vehicle_id)
-        while len(self._tracks) > 1 and (
-            len(self._tracks) > self.max_vehicles or self._bytes > self.max_filter_bytes
-        ):
-            _, old = self._tracks.popitem(last=False)  # the least recently seen vehicle
-            self._bytes -= old.filter.nbytes
-        return track
+        return self._filters.nbytes

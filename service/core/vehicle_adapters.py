@@ -15,25 +15,18 @@ from __future__ import annotations
 
 import dataclasses
 import threading
-from collections import OrderedDict
-from dataclasses import dataclass
 
 import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
 from service.core.streams import MAX_VEHICLE_ID
-from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, route_statistics
-from service.errors import InvalidInputError, InvalidParameterError
+from service.core.vehicle_state import VehicleState
+from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, adapts
+from service.errors import InvalidInputError
 
 MAX_VEHICLES = 10_000
 MAX_BYTES = 256 * 1024 * 1024  # every vehicle's running statistics together
-
-
-@dataclass
-class _Entry:
-    version: int
-    adapter: AppearanceAdapter
 
 
 class VehicleAdapters:
@@ -42,43 +35,26 @@ class VehicleAdapters:
     def __init__(self, config: AdaptationConfig | None = None, max_vehicles: int = MAX_VEHICLES,
                  max_bytes: int = MAX_BYTES) -> None:  # fmt: skip
         self.config = config or AdaptationConfig()
-        self.max_vehicles = max_vehicles
-        self.max_bytes = max_bytes
-        self._entries: OrderedDict[tuple[str, str], _Entry] = OrderedDict()
-        self._bytes = 0
+        self._state: VehicleState[tuple[str, str], AppearanceAdapter] = VehicleState(
+            max_vehicles, max_bytes, lambda a: a.nbytes)  # fmt: skip
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
-        return len(self._entries)
+        return len(self._state)
 
     @property
     def nbytes(self) -> int:
-        return self._bytes
+        return self._state.nbytes
 
     def adapt(self, loaded: LoadedModel, vehicle_id: str, Q: np.ndarray, reset: bool = False) -> np.ndarray:
         """``Q`` (validated rows, the vehicle's next frames in order) adapted to the vehicle's
         earlier frames on ``loaded``'s map; ``reset`` forgets them first."""
-        key = (loaded.map, vehicle_id)
         with self._lock:
-            entry = self._entries.get(key)
-            if entry is None or reset or entry.version != loaded.version:
-                self._forget(key)
-                entry = _Entry(loaded.version, AppearanceAdapter.for_model(loaded.model, self.config))
-                self._entries[key] = entry
-                self._bytes += entry.adapter.nbytes
-            self._entries.move_to_end(key)
-            out = entry.adapter.transform(Q)
-            while len(self._entries) > 1 and (
-                len(self._entries) > self.max_vehicles or self._bytes > self.max_bytes
-            ):
-                _, old = self._entries.popitem(last=False)  # the least recently seen vehicle
-                self._bytes -= old.adapter.nbytes
-            return out
-
-    def _forget(self, key: tuple[str, str]) -> None:
-        entry = self._entries.pop(key, None)
-        if entry is not None:
-            self._bytes -= entry.adapter.nbytes
+            adapter = self._state.current(
+                (loaded.map, vehicle_id), loaded,
+                lambda: AppearanceAdapter.for_model(loaded.model, self.config), restart=reset,
+            )  # fmt: skip
+            return adapter.transform(Q)
 
 
 def answer_vehicle(service: LocalizationService, adapters: VehicleAdapters, loaded: LoadedModel,
@@ -94,15 +70,9 @@ def answer_vehicle(service: LocalizationService, adapters: VehicleAdapters, load
             "adaptation needs a vehicle_id: a query is adapted to the same vehicle's earlier "
             "queries", field="vehicle_id",
         )  # fmt: skip
-    wanted = service.settings.drive_adaptation if adapt is None else adapt
     adapted = False
-    if wanted and vehicle_id is not None:
-        if route_statistics(loaded.model) is not None:
-            Q, adapted = adapters.adapt(loaded, vehicle_id, Q), True
-        elif adapt:
-            raise InvalidParameterError(
-                f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
-                "and keeps no route statistics to adapt to; send adaptation=false"
-            )
+    if vehicle_id is not None and adapts(loaded.model, adapt, service.settings.drive_adaptation,
+                                         f"map {loaded.map!r} version {loaded.version}"):  # fmt: skip
+        Q, adapted = adapters.adapt(loaded, vehicle_id, Q), True
     result = service.answer(loaded, Q, start, kind)
     return dataclasses.replace(result, adapted=adapted) if adapted else result

@@ -75,6 +75,22 @@ def route_statistics(model: Any) -> Normalizer | None:
     return getattr(front, "normalizer", None)
 
 
+def adapts(model: Any, requested: bool | None, default: bool, what: str = "this model") -> bool:
+    """Whether queries to ``model`` are adapted: as ``requested``, or ``default`` when not
+    said. A model without route statistics has nothing to adapt to: it goes unadapted by
+    default and is refused (naming ``what``) when adaptation was asked for explicitly."""
+    if not (default if requested is None else requested):
+        return False
+    if route_statistics(model) is not None:
+        return True
+    if requested:
+        raise InvalidParameterError(
+            f"{what} was trained without normalisation and keeps no route statistics to adapt "
+            "to; ask without adaptation"
+        )
+    return False
+
+
 class AppearanceAdapter:
     """One drive's running statistics; :meth:`transform` its frames in drive order."""
 
