@@ -103,21 +103,12 @@ def test_no_active_version_is_409(client: TestClient, trained: str, auth) -> Non
 
 
 def test_images_need_an_extractor_and_are_decoded(client: TestClient, auth, registry) -> None:
-    import io
-    import zipfile
+    from api_helpers import upload_image_map
 
     from service.imaging import make_extractor
     from service.imaging.decode import decode_image
 
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for i in range(30):
-            zf.writestr(f"frames/img-{i:03d}.png", png_bytes(i))
-    r = client.post("/v1/maps/imgs/routes", headers=auth, files={"file": ("route.zip", buf.getvalue())},
-                    data={"trainer": "ridge", "extractor": "patchnorm", "width": "32", "height": "16",
-                          "patch": "8"})  # fmt: skip
-    assert r.status_code == 202, r.text
-    client.app.state.context.store.refresh()
+    upload_image_map(client, auth)
     ext = make_extractor(registry.get_version("imgs", 1).extractor)
     assert ext.config.width == 32 and ext.config.patch == 8
 

@@ -4,11 +4,9 @@ filter parameters, and one map version answering a whole drive (SYNTHETIC data).
 from __future__ import annotations
 
 import base64
-import io
-import zipfile
 
 import numpy as np
-from api_helpers import png_bytes
+from api_helpers import png_bytes, upload_image_map
 from fastapi.testclient import TestClient
 
 from service.encoding.sequence import SequenceConfig, filter_sequence
@@ -20,24 +18,7 @@ def test_an_image_drive_as_a_form_or_base64_is_the_library_filter(
     from service.imaging import make_extractor
     from service.imaging.decode import decode_image
 
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for i in range(40):
-            zf.writestr(f"frames/img-{i:03d}.png", png_bytes(i))
-    r = client.post(
-        "/v1/maps/imgs/routes",
-        headers=auth,
-        files={"file": ("route.zip", buf.getvalue())},
-        data={
-            "trainer": "ridge",
-            "extractor": "patchnorm",
-            "width": "32",
-            "height": "16",
-            "patch": "8",
-        },
-    )
-    assert r.status_code == 202, r.text
-    client.app.state.context.store.refresh()
+    upload_image_map(client, auth, n_frames=40)
     drive = list(range(5, 30))
     ext = make_extractor(registry.get_version("imgs", 1).extractor)
     X = ext.extract([decode_image(png_bytes(i)) for i in drive])

@@ -4,11 +4,9 @@ earlier ones, between requests (in-process app, SYNTHETIC route), and the adapte
 from __future__ import annotations
 
 import base64
-import io
-import zipfile
 
 import numpy as np
-from api_helpers import png_bytes
+from api_helpers import png_bytes, upload_image_map
 from fastapi.testclient import TestClient
 
 from service.core.model_store import LoadedModel
@@ -67,15 +65,7 @@ def test_an_image_vehicle_gets_the_same_adapted_answers(client: TestClient, auth
     from service.imaging import make_extractor
     from service.imaging.decode import decode_image
 
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for i in range(30):
-            zf.writestr(f"frames/img-{i:03d}.png", png_bytes(i))
-    r = client.post("/v1/maps/imgs/routes", headers=auth, files={"file": ("route.zip", buf.getvalue())},
-                    data={"trainer": "ridge", "extractor": "patchnorm", "width": "32", "height": "16",
-                          "patch": "8"})  # fmt: skip
-    assert r.status_code == 202, r.text
-    client.app.state.context.store.refresh()
+    upload_image_map(client, auth)
     drive = [3, 9, 4, 20, 7]
     ext = make_extractor(registry.get_version("imgs", 1).extractor)
     model = registry.load_model("imgs", 1)
