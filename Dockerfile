@@ -13,11 +13,12 @@ ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
 RUN apt-get update && apt-get install -y --no-install-recommends gcc g++ && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 COPY pyproject.toml README.md ./
+COPY requirements/lock.txt ./requirements/lock.txt
 COPY service ./service
 RUN python -m venv /opt/gridplace \
  && /opt/gridplace/bin/pip install --upgrade pip \
  && /opt/gridplace/bin/pip install --index-url ${TORCH_INDEX} "torch==2.13.0" \
- && /opt/gridplace/bin/pip install ".[torch]"
+ && /opt/gridplace/bin/pip install ".[torch]" -c requirements/lock.txt
 
 FROM ${BASE_IMAGE} AS runtime
 ENV PATH=/opt/gridplace/bin:$PATH \
