@@ -19,9 +19,9 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.table import Table
 
+from service.cli.console import cli_console, print_table
 from service.cli.demo_data import EXTRACTORS, DemoData, demo_data
 from service.cli.demo_examples import print_examples
 from service.cli.demo_reading import TOLERANCE, reading, server_check
@@ -42,7 +42,7 @@ from service.encoding.evaluation import evaluate
 from service.encoding.sequence import SequenceConfig
 from service.errors import InvalidParameterError, UnavailableError
 
-console = Console()
+console = cli_console()
 DEMO_MAP = "demo"
 
 
@@ -86,7 +86,7 @@ def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any
                           f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
                           str(r["footprint_bytes"]),
                           f"{r['query_seconds_per_descriptor'] * 1e6:.0f}")  # fmt: skip
-    console.print(table)
+    print_table(console, table)
     return results
 
 
