@@ -80,6 +80,11 @@ class ModelParams(BaseModel):
         _DEFAULT.temperature, gt=0.0, allow_inf_nan=False,
         description="score temperature (None: the trainer's default)",
     )
+    auto_width: bool = Field(
+        True, description="projection width chosen from the route: at most n_components, at "
+        "most 0.7 of the training rows, and the model within N·d bytes (exact NN on uint8 "
+        "rows); false: n_components as given",
+    )
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int = Field(2, ge=1, le=100_000)
@@ -135,6 +140,7 @@ def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
         n_components=params.n_components,
         whiten_power=params.whiten_power,
         temperature=params.temperature,
+        auto_width=params.auto_width,
     )
     if params.n_chunks == 1:
         return PhaseEncoder(**common, n_jobs=params.n_jobs)
