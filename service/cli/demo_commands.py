@@ -23,7 +23,13 @@ import typer
 from service.cli.console import cli_console
 from service.cli.demo_data import EXTRACTORS, DemoData, demo_data
 from service.cli.demo_examples import print_examples
-from service.cli.demo_reading import confidence_meaning, reading, sample_frames, server_check
+from service.cli.demo_reading import (
+    TOLERANCE,
+    confidence_meaning,
+    reading,
+    sample_frames,
+    server_check,
+)
 from service.cli.demo_table import evaluate_all
 from service.cli.pitch import demo_banner
 from service.cli.errors import cli_errors
@@ -91,13 +97,15 @@ def _serve(data_dir: Path, port: int, grpc_port: int, model: PlaceRecognizer, pa
     with console.status(f"starting gridplace serve on {server.url}"):
         server.start()
     try:
-        frames = sample_frames(data.query.shape[0])
+        frames, many = sample_frames(data.query.shape[0]), sample_frames(data.query.shape[0], 100)
         with GridplaceClient(server.url, token=token) as gp:
             gp.wait_until_ready(timeout=120)
             hits = [gp.localize(DEMO_MAP, data.query[i]) for i in frames]
+            batch = gp.localize_batch(DEMO_MAP, data.query[many]).index
+        wider = (int(np.sum(np.abs(np.asarray(batch) - np.asarray(many)) <= TOLERANCE)), len(many))
         check = server_check(frames, [(h.index, h.confidence) for h in hits], hits[0].version,
-                             confidence_meaning(model),
-                             metrics.get("cross_season_precision_at_5"))  # fmt: skip
+                             confidence_meaning(model), metrics.get("cross_season_precision_at_5"),
+                             wider)  # fmt: skip
         console.print(check.text, highlight=False)
         probe = data.query[check.example]
         request = data_dir / "demo-localize.json"

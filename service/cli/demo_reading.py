@@ -172,10 +172,12 @@ class ServerCheck:
 
 
 def server_check(frames: list[int], answers: list[tuple[int, float]], version: int,
-                 meaning: str, cross_season: float | None = None) -> ServerCheck:  # fmt: skip
+                 meaning: str, cross_season: float | None = None,
+                 wider: tuple[int, int] | None = None) -> ServerCheck:  # fmt: skip
     """The live server's answers for ``frames`` (evenly spaced winter frames), each marked
-    right or wrong, their count beside the whole drive's precision (``cross_season``), and
-    the example frame: the first answered within ±TOLERANCE (else the first), said so."""
+    right or wrong, their count beside ``wider`` (hits, frames) of a larger evenly spaced
+    sample and the whole drive's precision (``cross_season``), and the example frame: the
+    first answered within ±TOLERANCE (else the first), said so."""
     lines = [f"server check: version {version} answered {len(frames)} winter frames evenly "
              "spaced along the route, each sent alone to /v1/localize (no vehicle, as sent):"]  # fmt: skip
     hits = []
@@ -184,9 +186,11 @@ def server_check(frames: list[int], answers: list[tuple[int, float]], version: i
         hits.append(off <= TOLERANCE)
         verdict = f"within ±{TOLERANCE}" if hits[-1] else f"wrong by {off:,} frames"
         lines.append(f"  frame {frame:>5} → {int(index):>5}  {verdict}, confidence {conf:.2f}")
+    more = (f", {wider[0]} of {wider[1]} evenly spaced frames (one /v1/localize/batch request)"
+            if wider is not None else "")  # fmt: skip
     whole = f"; on the whole winter traversal {cross_season:.1%} are" if cross_season is not None else ""
-    lines.append(f"  {sum(hits)} of {len(frames)} within ±{TOLERANCE} frames{whole}. Confidence is "
-                 f"{meaning}: low values mark answers not to trust.")  # fmt: skip
+    lines.append(f"  {sum(hits)} of these {len(frames)}{more} within ±{TOLERANCE} frames{whole}. "
+                 f"Confidence is {meaning}: low values mark answers not to trust.")  # fmt: skip
     pick = hits.index(True) if any(hits) else 0
     example, answer = frames[pick], int(answers[pick][0])
     why = (f"the first answered within ±{TOLERANCE}" if hits[pick]

@@ -95,7 +95,8 @@ def test_serve_publishes_the_map_and_its_examples_work(tmp_path: Path) -> None:
         answers = [ln for ln in lines[start:] if re.match(r"\s+frame\s+\d+ →\s+\d+\s+", ln)]
         assert len(answers) == 8, lines[start:]  # several frames, each right or wrong
         assert all(re.search(r"(within ±5|wrong by [\d,]+ frames), confidence", a) for a in answers)
-        summary = next(ln for ln in lines[start:] if " of 8 within ±5 frames" in ln)
+        summary = next(ln for ln in lines[start:] if " of these 8, " in ln)
+        assert re.search(r"\d+ of 100 evenly spaced frames .* within ±5 frames", summary), summary
         assert "calibrated softmax probability" in summary  # one digit: not "joint … digits"
         example = next(ln for ln in lines[start:] if "the examples below send frame" in ln)
         frame = int(re.search(r"send frame (\d+)", example).group(1))  # type: ignore[union-attr]

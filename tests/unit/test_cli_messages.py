@@ -172,3 +172,11 @@ def test_ctrl_c_during_extract_says_how_to_resume(tmp_path: Path) -> None:
     assert proc.returncode == 130
     assert "interrupted; run the same command again to resume" in one_line(stderr)
     assert "Traceback" not in stderr and not out.exists()
+
+
+def test_lines_into_a_pipe_are_not_wrapped(root: Path, tmp_path: Path) -> None:
+    out = tmp_path / ("a-rather-long-directory-name-" * 3) / "model_default_given"
+    res = run("train", root / "ref.npy", "--out", out)
+    assert res.returncode == 0, res.stderr
+    (line,) = [ln for ln in res.stdout.splitlines() if ln.startswith("saved ")]
+    assert str(out) in line and "exact NN on these 200 frames" in line  # one line, path whole
