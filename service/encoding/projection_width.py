@@ -17,9 +17,10 @@ Why both bounds:
   0.5 / 0.6 / 0.7 / 0.8 × N scored 54.1 / 55.3 / 55.7 / 55.0 % on average, and the width the
   storage bound alone allows (≈ 0.87 N) scored lower on every descriptor set; hence 0.7.
 
-When not even one component fits — the column statistics and 8 B per class alone exceed
-``N·d``, which takes ``d ≤ 16`` or a route of a few frames — the width is not reduced for
-storage and the manifest says the model is not within the bound (:func:`projection_summary`).
+When not even one component fits — the column statistics (8 B per column) and 9 B per class
+alone exceed ``N·d``: ``d ≤ 9``, or fewer than 10 frames at ``d ≥ 512`` (14 at ``d = 32``, 23 at
+``d = 16``) — the width is not reduced for storage and the manifest says the model is not
+within the bound (:func:`projection_summary`).
 """
 
 from __future__ import annotations

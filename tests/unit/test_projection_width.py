@@ -92,3 +92,10 @@ def test_the_queue_front_end_chooses_the_same_width(chunks: int) -> None:
     front = fit_front_end(route, params.model_dump(), plan_chunks(240, chunks))
     assert front.n_outputs == model.normalizer_.n_outputs  # type: ignore[union-attr]
     assert model.footprint().actual_bytes <= 240 * 120
+
+
+def test_the_bound_is_met_from_ten_frames_of_wide_rows() -> None:
+    for d in (512, 2048, 5120):
+        assert choose_width(256, 10, 10, d, [10], "int8").within_cap
+        assert not choose_width(256, 9, 9, d, [9], "int8").within_cap  # the statistics alone
+    assert not choose_width(256, 5000, 5000, 9, [5000], "int8").within_cap  # d ≤ 9: never
