@@ -15,6 +15,7 @@ loads and serves descriptors; its image queries answer 503 naming the missing ex
 
 from __future__ import annotations
 
+import io
 import logging
 import threading
 import time
@@ -27,7 +28,7 @@ from PIL import Image
 
 from service.encoding import PlaceRecognizer
 from service.errors import GridplaceError
-from service.imaging import Extractor, make_extractor
+from service.imaging import Extractor, extract_blobs, make_extractor
 
 if TYPE_CHECKING:
     from service.registry import Registry, VersionInfo
@@ -72,7 +73,10 @@ class LoadedModel:
             extractor = make_extractor(self.extractor_config)
             config = extractor.config
             size = (int(getattr(config, "width", 64)), int(getattr(config, "height", 32)))
-            extractor.extract([Image.new("RGB", size)])  # the first forward pass, not a query's
+            frame = io.BytesIO()
+            Image.new("RGB", size, (127, 127, 127)).save(frame, format="PNG")
+            # a query's whole path once: decoding an encoded image, the first forward pass
+            extract_blobs(extractor, [("warm-up.png", frame.getvalue())], 1)
         except GridplaceError as exc:
             log.warning("map %s v%s: image queries are unavailable: %s", self.map, self.version,
                         exc.message)  # fmt: skip

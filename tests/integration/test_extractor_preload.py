@@ -49,15 +49,19 @@ def test_the_first_image_query_costs_what_a_warm_one_costs(tmp_path: Path) -> No
     _publish(tmp_path, "cams", config)
     with ServerProcess(tmp_path, env=ENV) as srv, GridplaceClient(srv.url, timeout=120) as gp:
         gp.wait_until_ready(timeout=120)
-        seconds = []
+        seconds, server_ms = [], []
         for i in range(1 + WARM_QUERIES):
             start = time.perf_counter()
-            gp.localize("cams", image=_png(i))
+            answer = gp.localize("cams", image=_png(i))
             seconds.append(time.perf_counter() - start)
+            server_ms.append(answer.latency_ms)  # the server's own time: decoding, the network
     first, warm = seconds[0], statistics.median(seconds[1:])
-    # before the extractor was preloaded the first query took seconds (the import of torch,
-    # the network, its first forward pass) against milliseconds warm: hundreds of times more
-    assert first < 4 * warm + 0.05, f"first {first * 1e3:.0f} ms, warm median {warm * 1e3:.0f} ms"
+    inside, inside_warm = server_ms[0], statistics.median(server_ms[1:])
+    assert inside < 3 * inside_warm + 30, f"server side: first {inside:.0f} ms, warm {inside_warm:.0f} ms"
+    # before the extractor was preloaded the first query took seconds (10.9 s: the import of
+    # torch, the network, its first forward pass) against 22 ms warm, ≈ 500 times more; the
+    # bound leaves room for a loaded machine's noise (a first HTTP request costs a little more)
+    assert first < 10 * warm + 0.25, f"first {first * 1e3:.0f} ms, warm median {warm * 1e3:.0f} ms"
 
 
 def test_readiness_means_every_extractor_is_loaded(tmp_path: Path) -> None:
