@@ -27,6 +27,7 @@ from service.encoding import ExactNN, ModelParams, build_model
 from service.encoding.adaptation import AppearanceAdapter
 from service.encoding.base import precision_at
 from service.encoding.features import patch_normalize
+from service.harness.context import run_context
 
 HALF_B = 1788  # the first frame of the test half
 TOLERANCE = 5
@@ -107,7 +108,8 @@ def main(argv: list[str] | None = None) -> None:
     start = time.perf_counter()
     rows = [r for name, (ref, qry) in sets.items() for r in measure(name, ref, qry)]
     summary = summarise(rows)
-    result = {"benchmark": "small routes: the default's projection width", "tolerance": TOLERANCE,
+    result = {"benchmark": "small routes: the default's projection width", "context": run_context(),
+              "tolerance": TOLERANCE,
               "half": "B (frames 1788-3575)", "seconds": time.perf_counter() - start,
               "summary": summary, "slices": rows}  # fmt: skip
     args.out.write_text(json.dumps(result, indent=1))

@@ -99,3 +99,17 @@ def test_the_bound_is_met_from_ten_frames_of_wide_rows() -> None:
         assert choose_width(256, 10, 10, d, [10], "int8").within_cap
         assert not choose_width(256, 9, 9, d, [9], "int8").within_cap  # the statistics alone
     assert not choose_width(256, 5000, 5000, 9, [5000], "int8").within_cap  # d ≤ 9: never
+
+
+def test_the_small_routes_benchmark_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    from service.bench import small_routes_bench as bench
+
+    monkeypatch.setattr(bench, "SIZES", (60,))
+    monkeypatch.setattr(bench, "SLICES_PER_SIZE", 2)
+    route = smooth_route(bench.HALF_B + 200, 48, seed=5)  # SYNTHETIC, long enough for half B
+    rows = bench.measure("synthetic", route.reference, route.query)
+    assert [r["start"] for r in rows] == [bench.HALF_B, bench.HALF_B + 60]
+    (summary,) = bench.summarise(rows)
+    assert summary["default"]["bytes"] <= 60 * 48 < summary["pca256"]["bytes"]
+    assert summary["default"]["components"] == choose_width(256, 60, 60, 48, [60], "int8").width
+    assert 0 <= summary["default"]["single"] <= 1
