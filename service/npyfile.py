@@ -65,6 +65,25 @@ def describe(head: bytes) -> str:
     return "binary data of an unknown format"
 
 
+# file names the image extractors read (service.imaging.files lists folders with them)
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif",
+                            ".pgm", ".ppm"})  # fmt: skip
+
+
+def _folder_message(path: Path) -> str:
+    """Why a folder is not a descriptor file, and, for a folder of images, what makes one."""
+    try:
+        images = sum(1 for p in path.iterdir()
+                     if not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES)  # fmt: skip
+    except OSError:
+        images = 0
+    if not images:
+        return f"{path} is a folder, not a .npy file of descriptors"
+    return (f"{path} is a folder of {images:,} image{'s' if images != 1 else ''}, not a .npy file "
+            f"of descriptors: make one with `gridplace extract {path} --out descriptors.npy` "
+            "(the extractor the server uses)")  # fmt: skip
+
+
 def check_numeric(dtype: np.dtype, what: str) -> None:
     """Refuse object arrays (pickled Python objects) and any non-numeric dtype."""
     if dtype.hasobject:
@@ -147,6 +166,8 @@ def load_npy(
     else:
         path = Path(source)
         name = what or str(path)
+        if path.is_dir():
+            raise InvalidInputError(_folder_message(path), path=str(path))
         if not path.is_file():
             raise InvalidInputError(f"no such file: {path}", path=str(path))
         fh = path.open("rb")

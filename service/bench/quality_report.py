@@ -1,4 +1,4 @@
-"""Tables and the precision-vs-bytes frontier figure of ``gridplace bench quality``."""
+"""Tables of ``gridplace bench quality``; its figure is :mod:`service.bench.frontier_figure`."""
 
 from __future__ import annotations
 
@@ -8,11 +8,10 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from service.harness.quality_methods import FAMILY_LABELS
+from service.bench.frontier_figure import plot_frontier
 
+__all__ = ["markdown_tables", "plot_frontier", "print_report"]
 DRIVE_ORDER = ("A", "B", "all")
-COLORS = {"exact_nn": "tab:green", "exact_nn_projected": "tab:olive", "pq": "tab:red",
-          "yu": "tab:orange", "gridplace": "tab:blue"}  # fmt: skip
 
 
 def _cell(p: dict[str, float]) -> str:
@@ -99,91 +98,6 @@ def headline_drive(block: dict[str, Any]) -> str:
     """The drive a figure shows: B (never tuned on) for protocol (a), the pooled unseen
     halves for (b)."""
     return "B" if block["protocol"] == "cross" else "all"
-
-
-def pareto(points: list[tuple[float, float, str]]) -> list[tuple[float, float, str]]:
-    """The points (bytes, precision, name), sorted by bytes, that no smaller point beats."""
-    front: list[tuple[float, float, str]] = []
-    for p in sorted(points):
-        if not front or p[1] > front[-1][1]:
-            front.append(p)
-    return front
-
-
-def _adapted_points(ax: Any, rows: list[dict[str, Any]], drive: str, kind: str, tol: str) -> None:
-    """Each method's adapted figure as an open triangle of its family's colour, joined to its
-    unadapted point by a dotted line (methods measured before adaptation have none)."""
-    labelled = False
-    for r in rows:
-        figures = r["drives"][drive].get(f"{kind}_adapted")
-        if figures is None:
-            continue
-        x, before = r["actual_bytes"], 100 * r["drives"][drive][kind][tol]
-        after = 100 * figures[tol]
-        color = COLORS.get(r["family"], "k")
-        ax.plot([x, x], [before, after], ":", color=color, lw=0.8)
-        ax.plot([x], [after], "^", mfc="none", color=color, ms=6,
-                label=None if labelled else "adapted (open ▲)")  # fmt: skip
-        labelled = True
-
-
-def _panel(ax: Any, entry: dict[str, Any], block: dict[str, Any], kind: str, tol: str) -> None:
-    from matplotlib.ticker import NullFormatter
-
-    drive = headline_drive(block)
-    rows = [r for r in block["results"] if drive in r["drives"]]
-    for fam in dict.fromkeys(r["family"] for r in rows):
-        pts = sorted((r["actual_bytes"], 100 * r["drives"][drive][kind][tol], r["method"])
-                     for r in rows if r["family"] == fam)  # fmt: skip
-        color = COLORS.get(fam, "k")
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", color=color, ms=5,
-                label=FAMILY_LABELS.get(fam, fam))  # fmt: skip
-        front = pareto(pts)
-        if len(front) > 1:
-            ax.plot([p[0] for p in front], [p[1] for p in front], "-", color=color, lw=0.8)
-        for x, y, name in pts:
-            ax.annotate(name, (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
-    _adapted_points(ax, rows, drive, kind, tol)
-    ds = entry["dataset"]
-    ax.set_xscale("log")
-    ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.set_ylim(bottom=0)
-    ax.set_xlabel("actual bytes stored")
-    ax.set_ylabel(f"precision ±{tol} (%), drive {drive}")
-    ax.set_title(f"{ds['name']} · {block['protocol']} · {kind}", fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="best")
-
-
-def plot_frontier(report: dict[str, Any], path: Path) -> Path:
-    """Precision at the headline tolerance against actual bytes, one panel per descriptor
-    set × protocol × (single, sequence); every setting a labelled point, each family's
-    precision-vs-bytes frontier a line, and each setting's adapted figure an open triangle."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = [(e, b, kind) for e in report["sets"] for b in e["protocols"].values()
-              for kind in ("single", "sequence")]  # fmt: skip
-    cols = 2
-    rows = max(1, (len(panels) + cols - 1) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(6.4 * cols, 4.2 * rows), squeeze=False)
-    tol = str(report["headline_tolerance"])
-    for ax, (entry, block, kind) in zip(axes.ravel(), panels, strict=False):
-        _panel(ax, entry, block, kind, tol)
-    for ax in axes.ravel()[len(panels) :]:
-        ax.axis("off")
-    ctx = report["context"]
-    foot = f"{ctx['date']} · {ctx['machine']['cores']} cores · gridplace {ctx['git_commit']}"
-    config = (report.get("adaptation") or {}).get("config")
-    adapted = f" · adapted: {_config_text(config)}" if config else ""
-    fig.text(0.01, 0.005, f"{foot} · filter: HMM defaults{adapted}", fontsize=7, color="0.35")
-    fig.tight_layout(rect=(0, 0.02, 1, 1))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
 
 
 def _pct(p: float) -> str:

@@ -10,10 +10,11 @@ from service.cli import model_commands
 from service.cli import extract_commands, serve_commands
 from service.cli import worker_commands
 from service.cli import client_commands
+from service.cli.pitch import HELP
 
 app = typer.Typer(
     name="gridplace",
-    help="Visual place recognition with sub-linear storage growth.",
+    help=HELP,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )

@@ -15,7 +15,6 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 from pydantic import BaseModel
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     Progress,
@@ -26,15 +25,17 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from service.cli.console import cli_console, plural, print_table
 from service.cli.errors import cli_errors
 from service.client import GridplaceClient, Job, JobFailedError
 from service.client.calls import options_of
 from service.encoding.phases import parse_periods
+from service.encoding.presets import DEFAULT_PRESET, PRESETS
 from service.errors import InvalidInputError
 from service.npyfile import load_npy
 
 app = typer.Typer(help="Talk to a running gridplace server (REST).", no_args_is_help=True)
-console = Console()
+console = cli_console()
 
 Url = Annotated[str | None, typer.Option("--url", envvar="GRIDPLACE_URL", show_envvar=True,
                                          help="server URL (default http://127.0.0.1:8080)")]  # fmt: skip
@@ -115,7 +116,7 @@ def localize(
         _print_json(batch)
         return
     table = Table(
-        title=f"{batch.map} v{batch.version}: {batch.n} queries in {batch.latency_ms:.1f} ms"
+        title=f"{batch.map} v{batch.version}: {plural(batch.n, 'query', 'queries')} in {batch.latency_ms:.1f} ms"
     )
     for col in ("query", "frame index", "chunk", "confidence"):
         table.add_column(col, justify="right")
@@ -123,7 +124,7 @@ def localize(
         labels, batch.index, batch.chunk, batch.confidence, strict=True
     ):
         table.add_row(label, str(idx), str(chunk), f"{conf:.3f}")
-    console.print(table)
+    print_table(console, table)
 
 
 def _job_line(job: Job) -> str:
@@ -176,7 +177,10 @@ def upload(
     places: Annotated[list[Path] | None, typer.Option(
         "--places", help="int .npy: the place (0..N-1) of every row of one route file; give "
         "it once per file, in the files' order", show_default=False)] = None,
-    trainer: Annotated[str | None, typer.Option(help="logreg | svm | ridge | torch")] = None,
+    preset: Annotated[str | None, typer.Option(help=f"encoder preset: {' | '.join(PRESETS)} "
+        f"(default: the server's, {DEFAULT_PRESET}; see gridplace train --help)")] = None,
+    trainer: Annotated[str | None, typer.Option(
+        help="logreg (the paper's) | svm | ridge | torch | prototype (the default preset's)")] = None,
     patterns: Annotated[
         int | None, typer.Option("--patterns", "-k", help="number of encoders k")
     ] = None,
@@ -213,7 +217,7 @@ def upload(
     job fails with --wait)."""
     parsed = parse_periods(periods, "--periods")
     period_list = list(parsed) if parsed is not None else None
-    given = {"trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
+    given = {"encoder_preset": preset, "trainer": trainer, "n_patterns": patterns, "periods": period_list, "rho": rho,
              "C": c, "dtype": dtype, "n_chunks": chunks, "extractor": extractor}  # fmt: skip
     extra: dict[str, object] = {}
     for item in param or []:
@@ -275,7 +279,7 @@ def jobs(
             table.add_row(j.id, j.map, j.state, j.stage, done, str(len(j.retries)),
                           str(j.version) if j.version is not None else "-", _when(j.created_at),
                           _when(j.finished_at), j.error or "")  # fmt: skip
-        console.print(table)
+        print_table(console, table)
     failed = [j.id for j in found if j.state == "failed"]
     if failed and job_ids:
         raise JobFailedError(f"failed: {', '.join(failed)}")
@@ -314,7 +318,10 @@ def maps(
     for m in found:
         active = str(m.active_version) if m.active_version is not None else "-"
         table.add_row(m.name, active, ",".join(map(str, m.versions)), _when(m.created_at))
-    console.print(table if found else "no maps yet")
+    if found:
+        print_table(console, table)
+    else:
+        console.print("no maps yet")
 
 
 @app.command()
@@ -333,25 +340,17 @@ def versions(
         _print_json(found)
         return
     table = Table(title=f"map {map_name}")
-    for col in (
-        "version",
-        "active",
-        "kind",
-        "frames",
-        "traversals",
-        "d",
-        "stored bytes",
-        "P@0 (train)",
-        "created",
-    ):
+    for col in ("version", "active", "kind", "preset", "frames", "traversals", "d",
+                "stored bytes", "P@0 (train)", "created"):  # fmt: skip
         table.add_column(col, no_wrap=col in ("kind", "created"))
     for v in found:
         p0 = v.metrics.get("train_precision_at_0")
-        table.add_row(str(v.version), "*" if v.active else "", v.kind, str(v.n_frames),
+        table.add_row(str(v.version), "*" if v.active else "", v.kind,
+                      str(v.params.get("encoder_preset") or "-"), str(v.n_frames),
                       str(v.n_traversals), str(v.n_features),
                       f"{v.footprint.get('actual_bytes', v.artifact_bytes):,}",
                       f"{p0:.3f}" if isinstance(p0, (int, float)) else "-", _when(v.created_at))  # fmt: skip
-    console.print(table)
+    print_table(console, table)
 
 
 @app.command()

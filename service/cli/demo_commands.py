@@ -19,16 +19,22 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
-from rich.table import Table
 
+from service.cli.console import cli_console
 from service.cli.demo_data import EXTRACTORS, DemoData, demo_data
 from service.cli.demo_examples import print_examples
-from service.cli.demo_reading import TOLERANCE, reading, server_check
+from service.cli.demo_reading import (
+    TOLERANCE,
+    confidence_meaning,
+    reading,
+    sample_frames,
+    server_check,
+)
+from service.cli.demo_table import evaluate_all
+from service.cli.pitch import demo_banner
 from service.cli.errors import cli_errors
 from service.cli.fit_progress import fit_title, fit_with_progress
 from service.encoding import (
-    ExactNN,
     ModelParams,
     build_model,
     check_new_artifact_dir,
@@ -36,58 +42,16 @@ from service.encoding import (
     load_model,
     save_model,
 )
-from service.encoding.adaptation import AppearanceAdapter
 from service.encoding.base import PlaceRecognizer
-from service.encoding.evaluation import evaluate
-from service.encoding.sequence import SequenceConfig
 from service.errors import InvalidParameterError, UnavailableError
 
-console = Console()
+console = cli_console()
 DEMO_MAP = "demo"
 
 
 def _fit(params: ModelParams, X: np.ndarray) -> tuple[PlaceRecognizer, float]:
     model = build_model(params)
     return model, fit_with_progress(model, X, console, fit_title(model, X.shape[0]))
-
-
-CONDITIONS = {  # result key → what the table calls it
-    "identical": "identical",
-    "cross-season as sent": "cross-season, as sent",
-    "cross-season": "cross-season, adapted",
-    "cross-season drive": "as a drive, adapted",
-}
-
-
-def _evaluate(model: PlaceRecognizer, data: DemoData) -> dict[str, dict[str, Any]]:
-    """Both models on the training frames, on the other season frame by frame as sent and
-    adapted (appearance adaptation, from the reference's statistics for both models, as the
-    server does for drives), and adapted as one drive through the sequence filter (its
-    default parameters)."""
-    nn = ExactNN().fit(data.reference)
-    adapted_query = AppearanceAdapter.for_reference(data.reference).transform(data.query)
-    table = Table(title=f"gridplace demo ({data.label})")
-    for col in ("model", "condition", "P@0", "P@1", "P@5", "storage bytes", "µs/query"):
-        table.add_column(col)
-    results: dict[str, dict[str, Any]] = {}
-    for name, m in (("gridplace", model), ("exact NN", nn)):
-        same = evaluate(m, data.reference, tolerance=TOLERANCE)
-        sent = evaluate(m, data.query, tolerance=TOLERANCE)
-        cross = evaluate(m, adapted_query, tolerance=TOLERANCE, sequence=SequenceConfig())
-        per_frame = cross["sequence"]["seconds_per_frame"]
-        drive = {**cross, "precision_at": cross["sequence_precision_at"],
-                 "query_seconds_per_descriptor": per_frame}  # fmt: skip
-        conditions = {"identical": same, "cross-season as sent": sent, "cross-season": cross,
-                      "cross-season drive": drive}  # fmt: skip
-        for cond, r in conditions.items():
-            results[f"{name}/{cond}"] = r
-            pa = r["precision_at"]
-            table.add_row(name, CONDITIONS[cond],
-                          f"{pa['0']:.3f}", f"{pa['1']:.3f}", f"{pa['5']:.3f}",
-                          str(r["footprint_bytes"]),
-                          f"{r['query_seconds_per_descriptor'] * 1e6:.0f}")  # fmt: skip
-    console.print(table)
-    return results
 
 
 def _port(wanted: int) -> int:
@@ -133,13 +97,17 @@ def _serve(data_dir: Path, port: int, grpc_port: int, model: PlaceRecognizer, pa
     with console.status(f"starting gridplace serve on {server.url}"):
         server.start()
     try:
+        frames, many = sample_frames(data.query.shape[0]), sample_frames(data.query.shape[0], 100)
         with GridplaceClient(server.url, token=token) as gp:
             gp.wait_until_ready(timeout=120)
-            probe = data.query[data.probe]
-            hit = gp.localize(DEMO_MAP, probe)
-        check = server_check(data.probe, hit.index, hit.confidence, hit.version,
-                             metrics.get("cross_season_precision_at_5"))  # fmt: skip
-        console.print(check, highlight=False, soft_wrap=True)
+            hits = [gp.localize(DEMO_MAP, data.query[i]) for i in frames]
+            batch = gp.localize_batch(DEMO_MAP, data.query[many]).index
+        wider = (int(np.sum(np.abs(np.asarray(batch) - np.asarray(many)) <= TOLERANCE)), len(many))
+        check = server_check(frames, [(h.index, h.confidence) for h in hits], hits[0].version,
+                             confidence_meaning(model), metrics.get("cross_season_precision_at_5"),
+                             wider)  # fmt: skip
+        console.print(check.text, highlight=False)
+        probe = data.query[check.example]
         request = data_dir / "demo-localize.json"
         b64 = base64.b64encode(np.ascontiguousarray(probe, dtype="<f4").tobytes()).decode("ascii")
         request.write_text(json.dumps({"map": DEMO_MAP, "descriptor_b64": b64}))
@@ -147,7 +115,8 @@ def _serve(data_dir: Path, port: int, grpc_port: int, model: PlaceRecognizer, pa
         np.save(data_dir / "demo-queries.npy", sample, allow_pickle=False)
         (data_dir / "demo-queries.f32").write_bytes(sample.tobytes())
         print_examples(console, server.url, token, grpc_port if _listening(grpc_port) else 0,
-                       data_dir, data.probe, probe, data.query_image, server.log_path)  # fmt: skip
+                       data_dir, check.example, probe, data.query_image(check.example),
+                       server.log_path, check.example_index)  # fmt: skip
         while server.proc is not None and server.proc.poll() is None:
             time.sleep(0.5)
         raise UnavailableError(f"gridplace serve exited unexpectedly: {server.log()}")
@@ -208,6 +177,7 @@ def demo(
     params = ModelParams.parse(**{k: v for k, v in given.items() if v is not None})
     out = data_dir / "demo" if out is None else out
     path = check_new_artifact_dir(out / f"phase-{params.trainer}-{time.strftime('%Y%m%d-%H%M%S')}")
+    console.print(demo_banner(params.encoder_preset), highlight=False)
     data = demo_data(frames, synthetic, extractor, console)
     console.print(
         f"[bold]dataset[/]: {data.label}; N={data.reference.shape[0]}, d={data.reference.shape[1]}"
@@ -215,10 +185,10 @@ def demo(
     model, train_s = _fit(params, data.reference)
     save_model(model, path, extra={"train_seconds": train_s, "dataset": data.label})
     model = load_model(path)  # answer from the verified artifact, as the server does
-    results = _evaluate(model, data)
+    results = evaluate_all(console, model, params.encoder_preset, data)
     console.print(
-        f"trained with {params.trainer} in {train_s:.1f}s "
-        f"(periods {list(getattr(model, 'periods_', []))}); artifact: {path}"
+        f"trained preset {params.encoder_preset} ({params.trainer}) in {train_s:.1f}s "
+        f"(periods {list(getattr(model, 'periods_', []))}); artifact: {path}", highlight=False,
     )
     console.print(reading(results, data.reference.shape[0]), highlight=False, soft_wrap=True)
     (path.parent / f"{path.name}.results.json").write_text(

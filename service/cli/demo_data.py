@@ -33,9 +33,15 @@ class DemoData:
     query: np.ndarray
     label: str
     extractor: dict[str, Any] | None  # how images become these descriptors (None: synthetic)
-    query_image: Path | None  # the PNG of query row ``probe`` (Nordland only)
-    probe: int
+    query_images: Path | None  # the folder of the query traversal's PNGs (Nordland only)
     extract_seconds: float = 0.0
+
+    def query_image(self, row: int) -> Path | None:
+        """The PNG of query row ``row`` (files are named by source frame), if there is one."""
+        if self.query_images is None:
+            return None
+        png = self.query_images / f"images-{(row + 1) * 10:05d}.png"
+        return png if png.is_file() else None
 
 
 def patchnorm_config() -> dict[str, Any]:
@@ -47,7 +53,7 @@ def _synthetic(frames: int | None, why: str) -> DemoData:
     n = frames or 3000
     synth = smooth_route(n, 512, seed=0)
     label = f"SYNTHETIC smooth random route, {n} frames, d=512 ({why})"
-    return DemoData(synth.reference, synth.query, label, None, None, n // 3)
+    return DemoData(synth.reference, synth.query, label, None, None)
 
 
 def _extract(config: dict[str, Any], root: Path, frames: int | None,
@@ -68,12 +74,6 @@ def _extract(config: dict[str, Any], root: Path, frames: int | None,
     return out[0], out[1], time.perf_counter() - start
 
 
-def _png(root: Path, probe: int) -> Path | None:
-    """The query traversal's PNG of row ``probe`` (files are named by source frame)."""
-    png = root / "nordland-64x32" / "query" / f"images-{(probe + 1) * 10:05d}.png"
-    return png if png.is_file() else None
-
-
 def demo_data(frames: int | None, synthetic: bool, extractor: str, console: Console) -> DemoData:
     """The route for ``gridplace demo`` (see the module docstring)."""
     root = shared_data_dir()
@@ -89,10 +89,8 @@ def demo_data(frames: int | None, synthetic: bool, extractor: str, console: Cons
         else:
             label = (f"Nordland summer→winter, {ref.shape[0]} frames, CNN {config.get('preset')} "
                      f"descriptors (d={ref.shape[1]}, extracted in {seconds:.0f}s)")  # fmt: skip
-            probe = ref.shape[0] // 3
-            return DemoData(ref, qry, label, config, _png(root, probe), probe, seconds)
+            return DemoData(ref, qry, label, config, root / "nordland-64x32" / "query", seconds)
     route = nordland(limit=frames, patch=NORDLAND_PATCH)
     assert route is not None  # shared_data_dir() found it
-    probe = route.reference.shape[0] // 3
     return DemoData(route.reference, route.query, route.label, patchnorm_config(),
-                    _png(root, probe), probe)  # fmt: skip
+                    root / "nordland-64x32" / "query")  # fmt: skip

@@ -78,6 +78,7 @@ def print_examples(
     descriptor: np.ndarray,
     query_image: Path | None,
     log_path: Path,
+    answer: int | None = None,
 ) -> None:
     auth = '-H "Authorization: Bearer $GRIDPLACE_ADMIN_TOKEN"'
     request = data_dir / "demo-localize.json"
@@ -87,7 +88,8 @@ def print_examples(
         f"export GRIDPLACE_URL={url}",
         f"export GRIDPLACE_ADMIN_TOKEN={token}",
         "",
-        f"# localize winter frame {probe}: its descriptor as base64 little-endian float32",
+        f"# localize winter frame {probe}: its descriptor as base64 little-endian float32"
+        + (f" (the server answered frame {answer} above)" if answer is not None else ""),
         f"curl -s -H 'content-type: application/json' -d @{_q(request)} $GRIDPLACE_URL/v1/localize",
     ]
     if query_image is not None:

@@ -7,14 +7,14 @@ from collections.abc import Callable
 from typing import ParamSpec, TypeVar
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 
+from service.cli.console import cli_console
 from service.errors import GridplaceError
 
 P = ParamSpec("P")
 R = TypeVar("R")
-err_console = Console(stderr=True)
+err_console = cli_console(stderr=True)
 
 
 def cli_errors(fn: Callable[P, R]) -> Callable[P, R]:

@@ -8,11 +8,11 @@ from typing import Annotated, Any
 
 import typer
 from pydantic import ValidationError
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from service.cli.errors import cli_errors
-from service.errors import InvalidParameterError
+from service.cli.console import cli_console, plural
+from service.cli.errors import cli_errors, err_console
+from service.errors import ConflictError, InvalidParameterError
 from service.imaging import (
     DEFAULT_EXTRACTOR,
     PRESETS,
@@ -21,9 +21,10 @@ from service.imaging import (
     make_extractor,
     parse_extractor_config,
 )
+from service.imaging.resumable import partial_dir
 from service.imaging.settings import ImagingSettings
 
-console = Console()
+console = cli_console()
 
 
 @cli_errors
@@ -49,12 +50,19 @@ def extract(
     restart: Annotated[
         bool, typer.Option(help="ignore a partial extraction left by an interrupted run")
     ] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="replace --out if it exists (else an existing file is refused)")
+    ] = False,
 ) -> None:
     """Extract descriptors exactly as the server does for image uploads and image queries.
 
     The extractor config (with the CNN preset's name) is written beside the output as
-    ``<out>.extractor.json``. An interrupted run resumes where it stopped when started again
-    with the same folder and options (``--restart`` starts over)."""
+    ``<out>.extractor.json``. An existing ``--out`` is refused unless ``--overwrite`` (it is then
+    replaced only once the new array is complete). An interrupted run (Ctrl-C) resumes where
+    it stopped when started again with the same folder and options (``--restart`` starts over)."""
+    if (out.exists() or out.is_symlink()) and not overwrite:
+        raise ConflictError(f"{out} already exists; pass --overwrite to replace it, or choose "
+                            "another --out", path=str(out))  # fmt: skip
     raw: dict[str, Any] = {"kind": extractor or ("cnn" if preset else DEFAULT_EXTRACTOR["kind"])}
     options = {"width": width, "height": height, "patch": patch, "preset": preset}
     raw.update({k: v for k, v in options.items() if v is not None})
@@ -66,18 +74,25 @@ def extract(
         settings = ImagingSettings(**runtime)
     except ValidationError as exc:
         raise InvalidParameterError(f"--device: {exc.errors()[0]['msg']}") from exc
-    ext = make_extractor(config, settings)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), console=console) as bar:  # fmt: skip
-        label = getattr(config, "preset", None) or config.kind
-        task = bar.add_task(f"{label} {images_dir.name}", total=len(paths))
-        result = extract_folder(ext, paths, out, restart=restart,
-                                progress=lambda done, _n: bar.update(task, completed=done))  # fmt: skip
+    label = getattr(config, "preset", None) or config.kind
+    try:
+        ext = make_extractor(config, settings)
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeRemainingColumn(), console=console) as bar:  # fmt: skip
+            task = bar.add_task(f"{label} {images_dir.name}", total=len(paths))
+            result = extract_folder(ext, paths, out, restart=restart,
+                                    progress=lambda done, _n: bar.update(task, completed=done))  # fmt: skip
+    except KeyboardInterrupt:
+        kept = partial_dir(out)
+        where = f" (the frames extracted so far are kept in {kept})" if kept.is_dir() else ""
+        err_console.print(f"interrupted; run the same command again to resume{where}",
+                          highlight=False, markup=False)  # fmt: skip
+        raise typer.Exit(code=130) from None
     sidecar = out.with_name(out.name + ".extractor.json")
     sidecar.write_text(json.dumps(config.model_dump(mode="json"), indent=2) + "\n")
     resumed = f", resumed after {result.resumed_from}" if result.resumed_from else ""
-    console.print(f"wrote {out}: {result.n_frames} frames × d={result.n_features} "
-                  f"({label}{resumed}); {sidecar}")  # fmt: skip
+    console.print(f"wrote {out}: {plural(result.n_frames, 'frame')} × d={result.n_features} "
+                  f"({label}{resumed}); {sidecar}", highlight=False)  # fmt: skip
 
 
 def register(app: typer.Typer) -> None:

@@ -8,9 +8,10 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
 
 from service.cli.errors import cli_errors
+from service.cli.console import cli_console, plural
+from service.cli.model_reading import preset_line, storage_line
 from service.cli.fit_progress import fit_title, fit_with_progress
 from service.cli.train_tuning import (
     BudgetOpt,
@@ -39,7 +40,7 @@ from service.encoding.traversals import as_traversals
 from service.encoding.validation import check_descriptors
 from service.errors import InvalidParameterError
 
-console = Console()
+console = cli_console()
 
 
 @cli_errors
@@ -52,8 +53,10 @@ def train(
         "--places", help="int .npy: the place (0..N-1) of every row of one descriptor file; "
         "give it once per file, in the files' order", show_default=False)] = None,
     preset: Annotated[str | None, typer.Option(
-        help=f"encoder preset (default {DEFAULT_PRESET}; options below override it): "
-        f"{describe_presets()}", show_default=False)] = None,
+        help=f"encoder preset: {describe_presets()}. Without it: {DEFAULT_PRESET}, or paper when "
+        "an option of the paper's code is given (--patterns, --periods, --rho, --gamma, --C, "
+        "--code mixed_radix, a --trainer other than prototype); options override the preset's "
+        "fields", show_default=False)] = None,
     patterns: Annotated[int | None, typer.Option("--patterns", "-k", help="number of encoders k",
                                                  show_default=False)] = None,
     periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
@@ -92,10 +95,9 @@ def train(
     chosen: dict[str, object] = {k: v for k, v in given.items() if v is not None}
     if components is not None:
         chosen["n_components"] = components or None
-    params = ModelParams.parse(
-        periods=parse_periods(periods, "--periods"), gamma=gamma, decode=decode, n_chunks=chunks,
-        chunk_rho=chunk_rho, top_chunks=top_chunks, n_jobs=n_jobs, **chosen,
-    )  # fmt: skip
+    explicit = {**chosen, "periods": parse_periods(periods, "--periods"), "gamma": gamma}
+    params = ModelParams.parse(decode=decode, n_chunks=chunks, chunk_rho=chunk_rho,
+                               top_chunks=top_chunks, n_jobs=n_jobs, **explicit)  # fmt: skip
     check_new_artifact_dir(out)  # before minutes of training, not after
     if places and len(places) != len(references):
         raise InvalidParameterError(
@@ -118,12 +120,13 @@ def train(
     extra: dict[str, Any] = {"train_seconds": seconds, "source": source}
     if tuning is not None:
         extra["autotune"] = tuning.to_dict()
+    extra["encoder_preset"] = params.encoder_preset
     manifest = save_model(model, out, extra=extra)
-    fp = manifest["footprint"]
     console.print(
-        f"saved {out}: {model.kind} trainer={params.trainer} "
+        f"saved {out}: {model.kind} {preset_line(params, explicit)} "
         f"N={model.n_frames_} d={model.n_features_in_} traversals={model.n_traversals_} "
-        f"paper={fp['paper_bytes']:.0f} B actual={fp['actual_bytes']} B in {seconds:.1f}s"
+        f"in {seconds:.1f}s; {storage_line(model, manifest['footprint'])}",
+        highlight=False,
     )
 
 
@@ -205,7 +208,7 @@ def localize(
 def evaluate(
     model_dir: Annotated[Path, typer.Argument(help="artifact directory")],
     queries: Annotated[Path, typer.Argument(help=".npy query descriptors")],
-    tolerance: Annotated[int, typer.Option(help="frames of tolerance")] = 0,
+    tolerance: Annotated[int, typer.Option(min=0, help="frames of tolerance (≥ 0)")] = 0,
     ground_truth: Annotated[Path | None, typer.Option(help="int .npy: query i -> frame")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
     sequence: SequenceOpt = False,
@@ -227,10 +230,11 @@ def evaluate(
         return
     adapted = result["adaptation"]
     console.print(
-        f"precision@{tolerance}: {result['precision']:.4f} on {result['n']} queries; "
-        f"footprint {result['footprint_bytes']} B (paper formula {result['paper_bytes']:.0f} B); "
+        f"precision@{tolerance} (within ±{tolerance} frames): {result['precision']:.4f} on "
+        f"{plural(result['n'], 'query', 'queries')}; {storage_line(model, result['footprint'])}; "
         f"{result['query_seconds_per_descriptor'] * 1e6:.1f} µs/query; appearance adaptation "
-        + (f"on (alpha {adapted['alpha']:g}; --no-adapt: off)" if adapted else "off")
+        + (f"on (alpha {adapted['alpha']:g}; --no-adapt: off)" if adapted else "off"),
+        highlight=False,
     )
     if config is not None:
         seq = result["sequence"]

@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from service.cli.console import print_table
 from service.encoding import ModelParams, load_npy
 from service.encoding.autotune import AutotuneResult, autotune, default_candidates
 from service.encoding.traversals import as_traversals
@@ -99,6 +100,6 @@ def tune(
         table.add_row(escape(c.name), f"{c.precision:.3f}", str(c.actual_bytes),
                       "yes" if c.within_budget else "no",
                       "←" if c is result.chosen else "")  # fmt: skip
-    console.print(table)
+    print_table(console, table)
     console.print(f"chose {escape(result.chosen.name)}: {escape(result.reason)}")
     return result.params, result

@@ -71,16 +71,16 @@ def _check_header(what: str, shape: tuple[int, ...], dtype: np.dtype, min_rows: 
     check_numeric(dtype, what)
     if len(shape) != 2:
         raise DimensionMismatchError(
-            f"{what} must be a 2-D array (rows = frames), got {len(shape)} dimension(s)",
+            f"{what}: must be a 2-D array (rows = frames), got {len(shape)} dimension(s)",
             shape=list(shape),
         )  # fmt: skip
     rows, cols = int(shape[0]), int(shape[1])
     if rows < 0 or cols < 0:
         raise UnsafeFileError(f"{what}: the header declares a negative dimension {tuple(shape)}")
     if rows == 0 or cols == 0:
-        raise EmptyInputError(f"{what} are empty (shape {tuple(shape)})")
+        raise EmptyInputError(f"{what}: empty (shape {tuple(shape)})")
     if rows < min_rows:
-        raise InvalidInputError(f"{what} need at least {min_rows} rows, got {rows}", rows=rows)
+        raise InvalidInputError(f"{what}: at least {min_rows} rows needed, got {rows}", rows=rows)
     return rows, cols
 
 
@@ -108,7 +108,7 @@ def _stream_into_float32(fh: IO[bytes], what: str, rows: int, cols: int, dtype: 
             i, j = (int(v) for v in np.argwhere(bad)[0])
             row, column = (j, first + i) if fortran else (first + i, j)
             raise NonFiniteInputError(
-                f"{what} contain NaN, infinite or beyond-float32 values (first at row {row}, "
+                f"{what}: NaN, infinite or beyond-float32 values (first at row {row}, "
                 f"column {column})", row=row, column=column,
             )  # fmt: skip
         if fortran:

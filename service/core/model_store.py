@@ -5,10 +5,17 @@ request; a refresh builds a new mapping and replaces the reference in one assign
 activation or rollback never fails or blocks a request in flight. A background thread polls
 ``Registry.generation()`` every ``reload_interval_s``; other processes (a second API replica,
 the worker publishing a first version) are picked up the same way.
+
+A version that answers images has its extractor built and run once on a blank frame while
+the version loads (:meth:`LoadedModel.preload_extractor`), before it is served and before
+readiness: the first image query costs what the others cost, not the import of the network
+and its first forward pass (seconds). Without the extractor's packages the version still
+loads and serves descriptors; its image queries answer 503 naming the missing extra.
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import threading
 import time
@@ -17,9 +24,11 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from PIL import Image
+
 from service.encoding import PlaceRecognizer
 from service.errors import GridplaceError
-from service.imaging import Extractor, make_extractor
+from service.imaging import Extractor, extract_blobs, make_extractor
 
 if TYPE_CHECKING:
     from service.registry import Registry, VersionInfo
@@ -46,12 +55,36 @@ class LoadedModel:
         return int(self.model.n_frames_)
 
     def extractor(self) -> Extractor | None:
-        """The version's image extractor, built on first use (``None`` if it has none)."""
+        """The version's image extractor (``None`` if it has none); built here only when
+        :meth:`preload_extractor` could not (its error is raised again)."""
         if self.extractor_config is None:
             return None
         if not self._extractor:
             self._extractor.append(make_extractor(self.extractor_config))
         return self._extractor[0]
+
+    def preload_extractor(self) -> None:
+        """Build the extractor and run it once on a blank frame (a no-op without one). A
+        failure (a missing extra: :class:`UnavailableError`) is logged and left to the image
+        queries, which raise it again; the version's descriptors are served either way."""
+        if self.extractor_config is None or self._extractor:
+            return
+        try:
+            extractor = make_extractor(self.extractor_config)
+            config = extractor.config
+            size = (int(getattr(config, "width", 64)), int(getattr(config, "height", 32)))
+            frame = io.BytesIO()
+            Image.new("RGB", size, (127, 127, 127)).save(frame, format="PNG")
+            # a query's whole path once: decoding an encoded image, the first forward pass
+            extract_blobs(extractor, [("warm-up.png", frame.getvalue())], 1)
+        except GridplaceError as exc:
+            log.warning("map %s v%s: image queries are unavailable: %s", self.map, self.version,
+                        exc.message)  # fmt: skip
+            return
+        except Exception:  # the descriptors of this version stay servable
+            log.exception("map %s v%s: cannot preload the image extractor", self.map, self.version)
+            return
+        self._extractor.append(extractor)
 
 
 class ModelStore:
@@ -151,7 +184,9 @@ class ModelStore:
     def _load(self, name: str, version: int) -> LoadedModel:
         info = self._registry.get_version(name, version)
         model = self._registry.load_model(name, version)
-        return LoadedModel(name, version, model, info, info.extractor)
+        loaded = LoadedModel(name, version, model, info, info.extractor)
+        loaded.preload_extractor()  # before the version is served, so before readiness
+        return loaded
 
     # -- background thread ------------------------------------------------------------
     def start(self) -> None:

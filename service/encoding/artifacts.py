@@ -26,6 +26,7 @@ from safetensors.numpy import load_file, save_file
 
 from service.durable import fsync_dir
 from service.encoding.base import PlaceRecognizer
+from service.encoding.projection_width import projection_summary
 from service.errors import ArtifactError, ConflictError, InvalidInputError
 
 SCHEMA_VERSION = 1
@@ -88,6 +89,7 @@ def build_manifest(
         "dtype": params.get("dtype"),
         "meta": meta,
         "footprint": model.footprint().to_dict(),
+        "projection": projection_summary(model),
         "extra": extra or {},
     }
 

@@ -25,6 +25,7 @@ from service.encoding.normalization import Normalizer
 from service.encoding.patterns import select_columns
 from service.encoding.progress import ProgressFn, Steps
 from service.encoding.serving_plan import plan_for
+from service.encoding.projection_width import choose_width
 from service.encoding.traversals import (
     as_traversals,
     check_rows,
@@ -39,7 +40,7 @@ _ENCODER_PARAMS = (
     "n_patterns", "periods", "rho", "gamma", "trainer", "C", "decode", "beam_width", "dtype",
     "random_state", "code", "code_ratio", "temperature",
 )  # fmt: skip
-_FRONT_PARAMS = ("n_components", "whiten_power")  # the route's, not each chunk's
+_FRONT_PARAMS = ("n_components", "whiten_power", "auto_width")  # the route's, not each chunk's
 
 
 _BLOCK_ROWS = 65536  # rows converted to float64 at a time when a whole route is scanned
@@ -80,9 +81,17 @@ def _identity(rows: np.ndarray) -> np.ndarray:
     return rows
 
 
-def fit_front_end(X: np.ndarray, params: dict[str, Any]) -> FrontEnd:
-    """The route-wide front-end every chunk shares: normaliser, then the projection."""
-    return FrontEnd.of_params(X, {k: params[k] for k in ("dtype", *_FRONT_PARAMS) if k in params})
+def fit_front_end(X: np.ndarray, params: dict[str, Any], bounds: np.ndarray | None = None) -> FrontEnd:
+    """The route-wide front-end every chunk shares: normaliser, then the projection (with
+    ``auto_width`` and the chunks' ``bounds``, at the width chosen from the route and the
+    whole model's bytes, :mod:`service.encoding.projection_width`)."""
+    front = {k: params[k] for k in ("dtype", *_FRONT_PARAMS) if k in params}
+    if front.get("auto_width") and front.get("n_components") and bounds is not None:
+        encoder = _chunk_encoder(params)
+        classes = [len(bounds) - 1, *(p for n in np.diff(bounds) for p in encoder.periods_for(int(n)))]
+        front["n_components"] = choose_width(int(front["n_components"]), int(bounds[-1]), X.shape[0],
+                                             X.shape[1], classes, str(front["dtype"])).width  # fmt: skip
+    return FrontEnd.of_params(X, front)
 
 
 def fit_chunk_encoder(
@@ -188,6 +197,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         n_components: int | None = None,
         whiten_power: float = 0.75,
         temperature: float | None = None,
+        auto_width: bool = False,
     ) -> None:
         self.n_chunks = n_chunks
         self.n_patterns = n_patterns
@@ -208,6 +218,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.n_components = n_components
         self.whiten_power = whiten_power
         self.temperature = temperature
+        self.auto_width = auto_width
 
     def fit(
         self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None
@@ -224,7 +235,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         )._validate_params(X.shape[1])
         bounds = plan_chunks(tr.n_places, int(self.n_chunks))
         params = self.get_params()
-        normalizer = fit_front_end(X, params)
+        normalizer = fit_front_end(X, params, bounds)
         steps = self._steps(progress, bounds, params)
         classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0), idx)
         steps.done(0)

@@ -19,6 +19,7 @@ from service.encoding.prototype import DEFAULT_TEMPERATURE
 from service.encoding.quantization import check_dtype
 from service.encoding.residue import CODES, residue_periods, validate_residue_periods
 from service.encoding.serving_plan import plan_for
+from service.encoding.projection_width import choose_width
 from service.encoding.trainers import TRAINERS
 from service.encoding.traversals import as_traversals, per_place_C
 from service.errors import InvalidParameterError
@@ -53,6 +54,9 @@ class PhaseEncoder(PlaceRecognizer):
     temperature : scores are divided by it before the log-softmax (``None``: the trainer's
         default, :data:`service.encoding.prototype.DEFAULT_TEMPERATURE` for ``prototype``,
         else 1); :func:`service.encoding.calibration.calibrate` fits it on held-out queries.
+    auto_width : choose the projection width from the route: at most ``n_components``, at
+        most 0.7 of the training rows, and the model within ``N·d`` bytes, exact NN on the
+        route's uint8 rows (:mod:`service.encoding.projection_width`).
 
     The constructor's defaults are the paper's algorithm, so the parameters recorded in older
     artifacts keep their meaning; the product default is the ``robust`` preset
@@ -80,6 +84,7 @@ class PhaseEncoder(PlaceRecognizer):
         n_components: int | None = None,
         whiten_power: float = 0.75,
         temperature: float | None = None,
+        auto_width: bool = False,
     ) -> None:
         self.n_patterns = n_patterns
         self.periods = periods
@@ -98,6 +103,7 @@ class PhaseEncoder(PlaceRecognizer):
         self.n_components = n_components
         self.whiten_power = whiten_power
         self.temperature = temperature
+        self.auto_width = auto_width
 
     # -- fitting ------------------------------------------------------------------------
     def _validate_params(self, n_features: int) -> None:
@@ -141,12 +147,19 @@ class PhaseEncoder(PlaceRecognizer):
         tr = as_traversals(X, places)
         X = tr.rows
         self._validate_params(X.shape[1])
-        front = FrontEnd.fit(X, bool(self.normalize), self.n_components, float(self.whiten_power),
-                             self.dtype)  # fmt: skip
+        width = self._front_width(tr.n_places, X.shape[0], X.shape[1])
+        front = FrontEnd.fit(X, bool(self.normalize), width, float(self.whiten_power), self.dtype)
         self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
         self.normalizer_ = front if front.normalizer or front.projection else None
         self._set_fitted(self.n_frames_, X.shape[1], tr.n_traversals)
         return self
+
+    def _front_width(self, n_places: int, n_rows: int, n_features: int) -> int | None:
+        """The projection width to fit: ``n_components``, or chosen by ``auto_width``."""
+        if self.n_components is None or not self.auto_width:
+            return self.n_components
+        return choose_width(int(self.n_components), n_places, n_rows, n_features,
+                            self.periods_for(n_places), self.dtype).width  # fmt: skip
 
     def periods_for(self, n_frames: int) -> tuple[int, ...]:
         """The periods a fit on ``n_frames`` frames uses (its progress counts their sum)."""

@@ -60,7 +60,9 @@ def evaluate(
         "n_frames": model.n_frames_,
         "n_features": model.n_features_in_,
         "footprint_bytes": fp.actual_bytes,
-        "paper_bytes": fp.paper_bytes,
+        # the paper's float64 formula (whole bytes); it describes the paper's mixed-radix code
+        "paper_bytes": round(fp.paper_bytes),
+        "exact_nn_uint8_bytes": int(model.n_frames_) * int(model.n_features_in_),
         "footprint": fp.to_dict(),
         "mean_confidence": float(np.mean(loc.confidence)),
         "query_seconds_total": elapsed,

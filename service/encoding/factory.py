@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.encoder import PhaseEncoder
-from service.encoding.presets import DEFAULT_PRESET, PresetName, preset
+from service.encoding.presets import DEFAULT_PRESET, PresetName, base_preset, preset
 from service.errors import InvalidParameterError
 
 Period = Annotated[int, Field(ge=2, le=2**31 - 1)]
@@ -32,18 +32,22 @@ def default_trainer() -> str:
 
 
 class ModelParams(BaseModel):
-    """Every training parameter; the defaults are those of the default preset (``robust``).
+    """Every training parameter; with none given, those of the default preset (``robust``).
 
-    ``encoder_preset=NAME`` takes the encoder-defining fields from that preset
-    (:mod:`service.encoding.presets`); fields given explicitly override it. Explicit
-    ``periods`` without an explicit ``code`` are mixed-radix periods, as they have always
-    been (product ≥ N); residue periods are named with ``code="residue"``. Another trainer
-    than the preset's drops the preset's calibrated temperature (its own default applies)."""
+    The encoder-defining fields come from one preset, :func:`~service.encoding.presets.base_preset`:
+    the named ``encoder_preset``; else ``paper`` when an option only the paper's code uses is
+    given (``n_patterns``, ``periods``, ``rho``, ``gamma``, ``C``, ``code="mixed_radix"``, a
+    trainer other than ``prototype``); else the default. Fields given explicitly override the
+    preset's, and ``encoder_preset`` records the preset used. Explicit ``periods`` without an
+    explicit ``code`` are mixed-radix periods (product ≥ N); residue periods are named with
+    ``code="residue"``. Another trainer than the preset's drops the preset's calibrated
+    temperature (its own default applies)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     encoder_preset: PresetName | None = Field(
-        None, description="named encoder configuration (paper | ridge | robust | residue)"
+        None, description="the preset the encoder fields start from (paper | ridge | robust | "
+        "residue); recorded after validation, see base_preset()",
     )
     n_patterns: int = Field(_DEFAULT.n_patterns, ge=1, le=16,
                             description="number of phase encoders k")  # fmt: skip
@@ -76,6 +80,11 @@ class ModelParams(BaseModel):
         _DEFAULT.temperature, gt=0.0, allow_inf_nan=False,
         description="score temperature (None: the trainer's default)",
     )
+    auto_width: bool = Field(
+        True, description="projection width chosen from the route: at most n_components, at "
+        "most 0.7 of the training rows, and the model within N·d bytes (exact NN on uint8 "
+        "rows); false: n_components as given",
+    )
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int = Field(2, ge=1, le=100_000)
@@ -91,11 +100,12 @@ class ModelParams(BaseModel):
             return data
         if data.get("periods") is not None and data.get("code") is None:
             data = {**data, "code": "mixed_radix"}
+        name, _ = base_preset(data)
         try:
-            base = preset(str(data.get("encoder_preset") or DEFAULT_PRESET))
+            base = preset(name)
         except KeyError:
             return data  # the Literal field reports the unknown name
-        out = {**base.params(), **data}
+        out = {**base.params(), **data, "encoder_preset": name}
         if out["trainer"] != base.trainer and data.get("temperature") is None:
             out["temperature"] = None  # the preset's T was calibrated for its own trainer
         return out
@@ -130,6 +140,7 @@ def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
         n_components=params.n_components,
         whiten_power=params.whiten_power,
         temperature=params.temperature,
+        auto_width=params.auto_width,
     )
     if params.n_chunks == 1:
         return PhaseEncoder(**common, n_jobs=params.n_jobs)

@@ -2,9 +2,21 @@
 default chosen by measurement across conditions.
 
 A preset fixes the parameters that define the encoder (trainer, code, front-end, storage);
-:class:`service.encoding.factory.ModelParams` takes its defaults from
-:data:`DEFAULT_PRESET` and accepts ``encoder_preset=NAME`` with explicit fields overriding
-the preset's.
+:class:`service.encoding.factory.ModelParams` starts from one preset and explicit fields
+override its fields. Which one (:func:`base_preset`, the same rule for the CLI, REST uploads
+and the library):
+
+- ``encoder_preset=NAME`` names it;
+- otherwise an option that only the paper's code uses (:data:`PAPER_OPTIONS`: ``n_patterns``,
+  ``periods``, ``rho``, ``gamma``, ``C``; ``code="mixed_radix"``; a trainer other than the
+  default preset's) starts from ``paper``, so ``--patterns 2 --rho 0.5`` trains the code it
+  describes and ``--trainer ridge`` is the ``ridge`` preset, not a ridge over the default's
+  projection;
+- otherwise (no option, or only options the default uses too: ``n_components``, ``dtype``,
+  chunking, …) it is :data:`DEFAULT_PRESET`.
+
+The preset used is recorded (``ModelParams.encoder_preset``), so a stored job or version
+says what it was trained with.
 
 - ``paper``: Le & Milford's code: LIBLINEAR logistic regression (``C = 4``), mixed-radix
   digits, ``k = 2``, ``ρ = 0.5``, no projection, float32.
@@ -27,6 +39,7 @@ projection.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -89,6 +102,28 @@ def preset(name: str) -> EncoderPreset:
     except KeyError:
         known = sorted(PRESETS)
         raise KeyError(f"unknown encoder preset {name!r}; choose one of {known}") from None
+
+
+# fields that only the paper's code uses: given without a preset, they start from PAPER_PRESET
+PAPER_OPTIONS: tuple[str, ...] = ("n_patterns", "periods", "rho", "gamma", "C")
+PAPER_PRESET: PresetName = "paper"
+
+
+def base_preset(given: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+    """The preset that training parameters ``given`` start from, and the fields that chose
+    ``paper`` (empty unless they did): the named ``encoder_preset``; else ``paper`` when a
+    field of :data:`PAPER_OPTIONS`, ``code="mixed_radix"`` or a trainer other than the default
+    preset's is given (not ``None``); else :data:`DEFAULT_PRESET`."""
+    named = given.get("encoder_preset")
+    if named is not None:
+        return str(named), ()
+    default = PRESETS[DEFAULT_PRESET]
+    chose = [k for k in PAPER_OPTIONS if given.get(k) is not None]
+    if given.get("code") == "mixed_radix" and default.code != "mixed_radix":
+        chose.append("code")
+    if given.get("trainer") not in (None, default.trainer):
+        chose.append("trainer")
+    return (PAPER_PRESET, tuple(chose)) if chose else (DEFAULT_PRESET, ())
 
 
 def describe_presets() -> str:

@@ -25,27 +25,27 @@ def check_descriptors(
     try:
         arr = np.asarray(X)
     except (ValueError, TypeError) as exc:
-        raise InvalidInputError(f"{what} are not a rectangular numeric array: {exc}") from exc
+        raise InvalidInputError(f"{what}: not a rectangular numeric array ({exc})") from exc
     if arr.dtype == object or not (
         np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.bool_)
     ) or np.issubdtype(arr.dtype, np.complexfloating):
-        raise InvalidInputError(f"{what} must be real numbers, got dtype {arr.dtype}")
+        raise InvalidInputError(f"{what}: must be real numbers, got dtype {arr.dtype}")
     if arr.ndim == 1 and n_features is not None and arr.shape[0] == n_features:
         arr = arr[None, :]
     if arr.ndim != 2:
         raise DimensionMismatchError(
-            f"{what} must be a 2-D array (rows = frames), got {arr.ndim} dimension(s)",
+            f"{what}: must be a 2-D array (rows = frames), got {arr.ndim} dimension(s)",
             shape=list(arr.shape),
         )
     if arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise EmptyInputError(f"{what} are empty (shape {arr.shape})")
+        raise EmptyInputError(f"{what}: empty (shape {arr.shape})")
     if arr.shape[0] < min_rows:
         raise InvalidInputError(
-            f"{what} need at least {min_rows} rows, got {arr.shape[0]}", rows=arr.shape[0]
+            f"{what}: at least {min_rows} rows needed, got {arr.shape[0]}", rows=arr.shape[0]
         )
     if n_features is not None and arr.shape[1] != n_features:
         raise DimensionMismatchError(
-            f"{what} have {arr.shape[1]} columns but the model expects {n_features}",
+            f"{what}: {arr.shape[1]} columns, but the model expects {n_features}",
             expected=n_features,
             got=arr.shape[1],
         )
@@ -53,7 +53,7 @@ def check_descriptors(
     if not np.isfinite(arr).all():
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise NonFiniteInputError(
-            f"{what} contain NaN or infinite values (first at row {bad[0]}, column {bad[1]})",
+            f"{what}: NaN or infinite values (first at row {bad[0]}, column {bad[1]})",
             row=int(bad[0]),
             column=int(bad[1]),
         )

@@ -21,6 +21,8 @@ _BLOCK = 1024  # query rows scored against every frame at a time
 
 
 class ProjectedNN:
+    kind = "projected_nn"
+
     def __init__(self, n_components: int = 128, whiten_power: float = 0.75,
                  dtype: str = "float32", exclusion: int = 10) -> None:  # fmt: skip
         self.n_components = n_components
@@ -36,7 +38,7 @@ class ProjectedNN:
         step = np.diff(self.reference_.astype(np.float64), axis=0)
         median = float(np.median(np.einsum("ij,ij->i", step, step))) if step.size else 0.0
         self.sigma2_ = median if median > 0 else 1.0
-        self.n_frames_ = int(X.shape[0])
+        self.n_frames_, self.n_features_in_ = int(X.shape[0]), int(X.shape[1])
         return self
 
     def _sq_distances(self, X: Any) -> np.ndarray:

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import EmptyInputError, InvalidInputError
+from service.npyfile import IMAGE_SUFFIXES
 from service.imaging.decode import decode_batches
 from service.imaging.extractors import Extractor
 
-IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm"})
 BATCH = 256
 
 

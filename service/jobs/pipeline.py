@@ -236,7 +236,7 @@ def prepare(data_dir: Path, job_id: str) -> dict[str, Any]:
     bounds = plan_chunks(n_places, params.n_chunks)
     _validate(params, X.shape[1], np.diff(bounds).tolist())
     workspace = Workspace(data_dir, job_id)
-    prep = Prep(fit_front_end(X, params.model_dump()), bounds)
+    prep = Prep(fit_front_end(X, params.model_dump(), bounds), bounds)
     _write_while_open(registry, job_id, workspace, "the preparation",
                       lambda: workspace.save_prep(prep))  # fmt: skip
     registry.record_progress(job_id, timings={"prepare": time.perf_counter() - start},

@@ -37,8 +37,10 @@ class TrainingOptions(Request):
     """Training (and, for image archives, extractor) options; ``None`` = the server's default."""
 
     encoder_preset: EncoderPreset | None = Field(
-        None, description="named encoder configuration; the fields below override it "
-        "(default: the server's, robust)",
+        None, description="named encoder configuration; the fields below override it. Unset: "
+        "the server's default (robust), or paper when an option only the paper's code uses is "
+        "set (n_patterns, periods, rho, gamma, C, a trainer other than "
+        "prototype); the version records the preset used",
     )  # fmt: skip
     n_patterns: int | None = Field(None, ge=1, le=MAX_PATTERNS, description="phase encoders k")
     periods: list[Period] | None = Field(

@@ -48,7 +48,7 @@ def test_localize_descriptors_and_images(server: ServerProcess, synth: Job, rout
     assert r.exit_code == 0, r.output
     assert json.loads(r.output)["index"] == want
     r = _run(server, "localize", "synth", "--npy", str(queries), "--rows", "5")
-    assert r.exit_code == 0 and "synth v1: 1 queries" in r.output and str(want[0]) in r.output
+    assert r.exit_code == 0 and "synth v1: 1 query in" in r.output and str(want[0]) in r.output
     r = _run(server, "localize", "synth")
     assert r.exit_code == 2 and "exactly one of --npy or --image" in r.output
     image = tmp_path / "q.png"

@@ -1,5 +1,5 @@
 """``gridplace demo`` as a real process: the table (--no-serve) and the served map with its
-printed copy-paste examples actually working (SYNTHETIC route, trainer=ridge)."""
+printed copy-paste examples actually working (SYNTHETIC route, the default preset)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from service.bench.data import shared_data_dir
 from service.client import GridplaceClient, ServerUnreachableError
 
 pytestmark = pytest.mark.slow
-DEMO = [sys.executable, "-m", "service.cli", "demo", "--trainer", "ridge"]
+DEMO = [sys.executable, "-m", "service.cli", "demo"]  # the default preset, as a newcomer runs it
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "160"}
 
 
@@ -33,9 +33,14 @@ def test_no_serve_prints_the_table_and_exits(tmp_path: Path) -> None:
     assert "a random guess gets" in out.stdout and "docs/RESULTS.md" in out.stdout
     # single frames and the drive through the sequence filter, beside exact NN, with storage
     assert "as a drive" in out.stdout and "as one drive" in out.stdout and "of its storage" in out.stdout
+    # what ships, and where its gain comes from: exact NN in the default's own space beside it
+    assert out.stdout.startswith("gridplace demo: the default preset `robust`")
+    assert "nn-pca" in out.stdout and "where the gain comes from" in out.stdout
+    assert "within ±k frames" in " ".join(out.stdout.split())  # P@k is defined
     (results,) = tmp_path.glob("*.results.json")
     assert set(json.loads(results.read_text())) >= {"gridplace/identical", "exact NN/cross-season",
-                                                    "gridplace/cross-season drive"}  # fmt: skip
+                                                    "gridplace/cross-season drive",
+                                                    "nn-pca/cross-season"}  # fmt: skip
     assert "curl" not in out.stdout and not (tmp_path / "registry.sqlite3").exists()
 
 
@@ -45,6 +50,15 @@ def test_no_serve_on_a_slice_of_nordland(tmp_path: Path) -> None:
                          check=False, capture_output=True, text=True, timeout=120, env=ENV)  # fmt: skip
     assert out.returncode == 0, out.stdout + out.stderr
     assert "Nordland summer→winter, 200 frames" in out.stdout
+
+
+def test_options_of_the_paper_code_are_named_in_the_banner(tmp_path: Path) -> None:
+    out = subprocess.run([*DEMO, "--no-serve", "--synthetic", "--frames", "200", "--trainer", "ridge",
+                          "--out", str(tmp_path)], check=False, capture_output=True, text=True,
+                         timeout=120, env=ENV)  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert out.stdout.startswith("gridplace demo: preset `paper` (chosen by your options")
+    assert "nn-pca" not in out.stdout  # no projection: no exact NN in its space to show
 
 
 def test_bad_parameters_exit_2(tmp_path: Path) -> None:
@@ -77,8 +91,16 @@ def test_serve_publishes_the_map_and_its_examples_work(tmp_path: Path) -> None:
     )
     try:
         lines = _read_until(proc, "Ctrl-C stops the server", 120)
-        (check,) = [ln for ln in lines if ln.startswith("server check:")]
-        assert re.search(r"→ frame \d+, (correct|wrong by \d+ frames)", check), check
+        start = next(i for i, ln in enumerate(lines) if ln.startswith("server check:"))
+        answers = [ln for ln in lines[start:] if re.match(r"\s+frame\s+\d+ →\s+\d+\s+", ln)]
+        assert len(answers) == 8, lines[start:]  # several frames, each right or wrong
+        assert all(re.search(r"(within ±5|wrong by [\d,]+ frames), confidence", a) for a in answers)
+        summary = next(ln for ln in lines[start:] if " of these 8, " in ln)
+        assert re.search(r"\d+ of 100 evenly spaced frames .* within ±5 frames", summary), summary
+        assert "calibrated softmax probability" in summary  # one digit: not "joint … digits"
+        example = next(ln for ln in lines[start:] if "the examples below send frame" in ln)
+        frame = int(re.search(r"send frame (\d+)", example).group(1))  # type: ignore[union-attr]
+        answered = int(re.search(r"server answers (\d+)", example).group(1))  # type: ignore[union-attr]
         exports = {ln.split("=", 1)[0][len("export "):]: ln.split("=", 1)[1]
                    for ln in lines if ln.startswith("export ")}  # fmt: skip
         assert exports["GRIDPLACE_URL"] == f"http://127.0.0.1:{port}"
@@ -104,6 +126,8 @@ def test_serve_publishes_the_map_and_its_examples_work(tmp_path: Path) -> None:
                 assert run.returncode == 0 and not failed, (line, body)
                 if "/v1/jobs/" in line:
                     assert body["id"] == shell_env["JOB_ID"] and "progress" in body
+                if line.endswith("/v1/localize"):  # the example frame: the answer printed above
+                    assert body["index"] == answered, (frame, body)
         assert any("grpc" in ln.lower() for ln in lines)
         proc.send_signal(signal.SIGINT)  # Ctrl-C
         assert proc.wait(timeout=30) == 0

@@ -118,9 +118,11 @@ def test_sequence_filter_stabilises_a_noisy_route(served: Served) -> None:
     p_raw = _precision([r.index for r in raw], truth)
     p_seq = _precision([r.index for r in filtered], truth)
     assert p_raw < 0.9 and p_seq > p_raw + 0.1, (p_raw, p_seq)
-    # the stream answers what the library filter answers on the served artifact
+    # the stream answers what the library filter answers on the served artifact, for the
+    # vehicle's drive adapted as the stream adapts it (its default)
     model = Registry(served.data_dir).load_model("route", 1)
-    track = sequence_localize(model, noisy[truth].astype(np.float32), SequenceConfig())
+    drive_rows = adapt_drive(model, noisy[truth].astype(np.float32).astype(np.float64))
+    track = sequence_localize(model, drive_rows, SequenceConfig())
     assert [r.index for r in filtered] == track.index.tolist()
 
 

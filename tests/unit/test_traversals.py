@@ -197,7 +197,7 @@ BAD_INPUT = [
     ("several indices for one", A5, [np.arange(5), np.arange(5)], InvalidInputError,
      "2 place-index arrays given for one traversal"),
     ("nan in traversal 2", [A5, np.full((5, 4), np.nan)], None, InvalidInputError,
-     "traversal 2 of the training descriptors contain NaN"),
+     "traversal 2 of the training descriptors: NaN"),
 ]  # fmt: skip
 
 
