@@ -54,7 +54,7 @@ Prepare = Callable[[], "tuple[LoadedModel, np.ndarray, AppearanceAdapter | None]
 MAX_BATCHED_BYTES = 64 * 1024
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class _Item:
     """One request: how to validate it (``prepare``), and how to turn its raw result into
     the caller's answer (``finish``, e.g. a stream's filter step)."""

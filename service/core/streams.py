@@ -61,7 +61,7 @@ MAX_ADAPTER_BYTES_PER_STREAM = 64 * 1024 * 1024  # the adapters' running statist
 FILTER_OVERHEAD_BYTES = 4096
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # not frozen: a frozen dataclass costs 1.6 µs to make, this 0.3
 class Frame:
     """One request of a stream: exactly one of ``descriptor`` (little-endian float32 bytes,
     ``d`` values) or ``image`` (encoded image bytes)."""
@@ -76,7 +76,7 @@ class Frame:
     adapt: bool | None = None  # appearance adaptation; None: the stream's default
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class FrameAnswer:
     vehicle_id: str
     sequence: int
@@ -173,8 +173,9 @@ class FleetStream:
         if len(frame.vehicle_id) > MAX_VEHICLE_ID:
             raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
         loaded = self.service.served(frame.map)
-        Q = self._query(loaded, frame)
-        if not self._adapts(frame, loaded):
+        adapted = self._adapts(frame, loaded)
+        Q = self._query(loaded, frame, np.float32 if adapted else np.float64)  # float32: adapted so
+        if not adapted:
             return loaded, Q, None
         with self._lock:
             self._check_open()
@@ -223,7 +224,7 @@ class FleetStream:
             lambda: AppearanceAdapter.for_model(loaded.model, self.adaptation), restart=frame.reset,
         )  # fmt: skip
 
-    def _query(self, loaded: LoadedModel, frame: Frame) -> np.ndarray:
+    def _query(self, loaded: LoadedModel, frame: Frame, dtype: type) -> np.ndarray:
         if frame.descriptor is not None and frame.image is not None:
             raise InvalidInputError("a frame carries a descriptor or an image, not both")
         if frame.image is not None:
@@ -231,8 +232,8 @@ class FleetStream:
             return self.service.query_images(loaded, [(label, frame.image)])
         if frame.descriptor is None:
             raise EmptyInputError("the frame has neither a descriptor nor an image")
-        return one_descriptor(self.service.query_bytes(loaded, frame.descriptor), loaded,
-                              "a stream frame")  # fmt: skip
+        return one_descriptor(self.service.query_bytes(loaded, frame.descriptor, dtype=dtype),
+                              loaded, "a stream frame")  # fmt: skip
 
     @property
     def filter_bytes(self) -> int:

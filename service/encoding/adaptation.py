@@ -46,7 +46,7 @@ constant in one drive (a saturated sky) is not blown up.
 
 Works with any model whose front-end keeps the route's statistics (:meth:`for_model`), or
 with statistics of a reference array (:meth:`for_reference`, e.g. for a baseline). Adapters of
-one model share its route statistics; each holds only its own ``3·d`` float64 values
+one model share its route statistics; each holds only its own ``3·d`` float32 values
 (:attr:`AppearanceAdapter.nbytes` counts them with the object's own overhead).
 :func:`transform_rows` adapts the frames of many vehicles in one vectorised step per frame
 position (a micro-batch of a fleet), with the answers of each adapter's own :meth:`transform`.
@@ -112,7 +112,8 @@ class AdaptationConfig(BaseModel):
 
 @dataclass(frozen=True, eq=False)
 class RouteStatistics:
-    """The route's column statistics in float64, shared by every adapter of one model."""
+    """The route's column statistics in float32 (the precision models store them in), shared
+    by every adapter of one model."""
 
     mean: np.ndarray
     scale: np.ndarray
@@ -121,8 +122,8 @@ class RouteStatistics:
 
     @classmethod
     def of(cls, mean: np.ndarray, scale: np.ndarray) -> RouteStatistics:
-        mu = np.array(mean, dtype=np.float64).ravel()
-        sigma = np.array(scale, dtype=np.float64).ravel()
+        mu = np.array(mean, dtype=np.float32).ravel()
+        sigma = np.array(scale, dtype=np.float32).ravel()
         if mu.shape != sigma.shape or not np.all(sigma > 0):
             raise InvalidParameterError("route statistics need one positive scale per mean")
         for a in (mu, sigma):
@@ -189,7 +190,7 @@ class AppearanceAdapter:
             if scale is None:
                 raise InvalidParameterError("route statistics need a scale per mean")
             self.route = RouteStatistics.of(mean, scale)
-        self._state = np.empty((3, self.route.mean.shape[0]))
+        self._state = np.empty((3, self.route.mean.shape[0]), dtype=np.float32)
         self.reset()
 
     @classmethod
@@ -237,7 +238,7 @@ class AppearanceAdapter:
     @property
     def nbytes(self) -> int:
         """Memory this adapter holds on its own: the running mean, variance and last frame
-        learnt from (``3·d`` float64) and the Python objects around them (the route's
+        learnt from (``3·d`` float32) and the Python objects around them (the route's
         statistics are shared by every adapter of the model and not counted here)."""
         return int(self._state.nbytes) + ADAPTER_OVERHEAD_BYTES
 
@@ -251,7 +252,7 @@ class AppearanceAdapter:
         self._frames = self._learnt = self._outliers = 0
 
     def transform(self, X: np.ndarray) -> np.ndarray:
-        """Adapted ``(n, d)`` float64 rows of validated descriptors ``X`` taken as the drive's
+        """Adapted ``(n, d)`` float32 rows of validated descriptors ``X`` taken as the drive's
         next ``n`` frames, in row order; the statistics move on by ``n`` frames."""
         X = self._rows(X)
         out = np.empty_like(X)
@@ -261,7 +262,8 @@ class AppearanceAdapter:
         return out
 
     def _rows(self, X: np.ndarray) -> np.ndarray:
-        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        with np.errstate(over="ignore"):  # a value beyond float32 is infinite: an outlier
+            X = np.atleast_2d(np.asarray(X, dtype=np.float32))
         if X.shape[1] != self.n_features:
             raise InvalidParameterError(
                 f"the adapter holds statistics of d={self.n_features}, got rows of d={X.shape[1]}"
@@ -322,23 +324,24 @@ def _step(route: RouteStatistics, config: AdaptationConfig, state: np.ndarray, X
           adapters: Sequence[AppearanceAdapter]) -> np.ndarray:  # fmt: skip
     """One frame of each of ``k`` distinct drives: ``state`` (k, 3, d) holds their statistics
     (updated in place), ``X`` (k, d) their frames; the adapted frames are returned and each
-    adapter's counters move on (its state array is the caller's to write back)."""
+    adapter's counters move on (its state array is the caller's to write back). float32
+    throughout, with as few passes over the columns as the rule allows: the step is
+    memory-bound (three times faster than in float64 for a fleet's batch at d = 2,048)."""
     mean, var, last = state[:, _MEAN], state[:, _VAR], state[:, _LAST]
+    d = X.shape[1]
     with np.errstate(over="ignore", invalid="ignore"):  # a wild frame's z² may overflow: inf
-        delta = X - mean
-        scale = np.maximum(var, route.floor)  # the variance a column is divided by
-        root = np.sqrt(scale)
-        z = delta / root
+        z = X - mean  # δ, then the z-score in place
+        root = np.maximum(var, route.floor)
+        np.sqrt(root, out=root)  # the standard deviation a column is divided by
+        z /= root
         out = z * route.scale
         out += route.mean
-        square = z * z
-        inside = square.mean(axis=1) <= config.outlier  # False for inf and NaN
+        inside = np.vecdot(z, z) <= config.outlier * d  # mean z² ≤ outlier; False for inf, NaN
         novel = inside
         if config.novelty > 0 and inside.any():
-            np.subtract(X, last, out=square)
-            square *= square
-            square /= scale
-            novel = inside & ~(square.mean(axis=1) < config.novelty)
+            diff = X - last
+            diff /= root
+            novel = inside & ~(np.vecdot(diff, diff) < config.novelty * d)
     learn: list[int] = []
     anchor: list[int] = []
     for i, a in enumerate(adapters):
@@ -356,15 +359,17 @@ def _step(route: RouteStatistics, config: AdaptationConfig, state: np.ndarray, X
             a._learnt += 1
             a._has_last = True
     if learn:
-        rows: slice | list[int] = slice(None) if len(learn) == len(adapters) else learn
-        step = np.clip(z[rows], -config.clip, config.clip)
-        step *= root[rows]  # δ with each column clipped at ±clip running standard deviations
-        mean[rows] += config.alpha * step  # exponentially weighted mean and variance
-        step *= step
-        step *= config.alpha
-        var[rows] += step
+        every = len(learn) == len(adapters)
+        step = np.clip(z, -config.clip, config.clip, out=z) if every else np.clip(z[learn], -config.clip, config.clip)
+        step *= root if every else root[learn]  # δ, each column clipped at ±clip standard deviations
+        gain = step * config.alpha
+        rows: slice | list[int] = slice(None) if every else learn
+        mean[rows] += gain  # exponentially weighted mean and variance
+        gain *= step  # α·δ²
+        var[rows] += gain
         var[rows] *= 1.0 - config.alpha  # (1 − α)(v + α·δ²), West (1979)
         last[rows] = X[rows]
+    anchor = [i for i in anchor if np.isfinite(X[i]).all()]  # never restart at an infinity
     if anchor:  # the drive moved away for good: start over from this frame, the route's spread
         mean[anchor] = X[anchor]
         var[anchor] = route.var

@@ -159,5 +159,5 @@ def test_adapters_restart_with_the_version_and_forget_the_least_recent() -> None
     assert np.allclose(restarted, Q[10:11], atol=1e-5) and same == key
     adapters.adapt(v1, "b", Q[:1])
     adapters.adapt(v1, "c", Q[:1])
-    per_vehicle = 24 * 8 + ADAPTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES  # mean, variance, last
+    per_vehicle = 12 * 8 + ADAPTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES  # float32 mean, var, last
     assert len(adapters) == 2 and adapters.nbytes == 2 * per_vehicle

@@ -141,8 +141,8 @@ def test_a_map_without_route_statistics_is_not_adapted(ctx: tuple[ServiceContext
 
 def test_adapters_are_dropped_least_recent_first(ctx: tuple[ServiceContext, np.ndarray]) -> None:
     context, Q = ctx
-    # one adapter: a float64 mean, variance and last frame per column, its objects, the entry
-    per_vehicle = 24 * D + ADAPTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
+    # one adapter: a float32 mean, variance and last frame per column, its objects, the entry
+    per_vehicle = 12 * D + ADAPTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
     stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * per_vehicle)
     for vehicle in ("a", "b", "c"):
         stream.answer(frame(Q, 10, vehicle))
