@@ -359,16 +359,28 @@ def _step(route: RouteStatistics, config: AdaptationConfig, state: np.ndarray, X
             a._learnt += 1
             a._has_last = True
     if learn:
-        every = len(learn) == len(adapters)
-        step = np.clip(z, -config.clip, config.clip, out=z) if every else np.clip(z[learn], -config.clip, config.clip)
-        step *= root if every else root[learn]  # δ, each column clipped at ±clip standard deviations
-        gain = step * config.alpha
-        rows: slice | list[int] = slice(None) if every else learn
-        mean[rows] += gain  # exponentially weighted mean and variance
-        gain *= step  # α·δ²
-        var[rows] += gain
-        var[rows] *= 1.0 - config.alpha  # (1 − α)(v + α·δ²), West (1979)
-        last[rows] = X[rows]
+        step = z
+        if not inside.all():
+            step[~inside] = 0.0  # an outlier's z may be infinite: it is not learnt from anyway
+        np.clip(step, -config.clip, config.clip, out=step)
+        step *= root  # δ, each column clipped at ±clip standard deviations
+        alpha, keep = np.float32(config.alpha), np.float32(1.0 - config.alpha)  # one rounding
+        if len(learn) == len(adapters):
+            gain = step * alpha
+            mean += gain  # exponentially weighted mean and variance
+            gain *= step  # α·δ²
+            var += gain
+            var *= keep  # (1 − α)(v + α·δ²), West (1979)
+            last[...] = X
+        else:  # rows that are not learnt from get a zero step and a factor 1: exactly unchanged
+            learns = np.zeros((len(adapters), 1), dtype=bool)
+            learns[learn] = True
+            gain = step * np.where(learns, alpha, np.float32(0.0))
+            mean += gain
+            gain *= step
+            var += gain
+            var *= np.where(learns, keep, np.float32(1.0))
+            np.copyto(last, X, where=learns)
     anchor = [i for i in anchor if np.isfinite(X[i]).all()]  # never restart at an infinity
     if anchor:  # the drive moved away for good: start over from this frame, the route's spread
         mean[anchor] = X[anchor]

@@ -11,8 +11,8 @@ from fastapi.testclient import TestClient
 
 from service.core.model_store import LoadedModel
 from service.core.vehicle_adapters import VehicleAdapters
-from service.encoding import ModelParams, build_model
 from service.core.vehicle_state import ENTRY_OVERHEAD_BYTES
+from service.encoding import ModelParams, build_model
 from service.encoding.adaptation import ADAPTER_OVERHEAD_BYTES, adapt_drive
 from service.encoding.synthetic import smooth_route
 
