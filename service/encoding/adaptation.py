@@ -37,7 +37,7 @@ on CNN, −0.9 on pixels against learning from every frame) and decides the driv
 half does not have: the same drive slowed ten-fold (every frame sent ten times) keeps 64.4 %
 with it and drops to 59.2 % without; a drive interpolated ten-fold between its frames gets
 60.0 % against 54.9 % (46.4 % unadapted). The robust rule was chosen there too: ``clip``
-among 2, 3, 4 and none (−0.4, −0.1, −0.05 and 0 points on CNN; −2.3, −0.2, −0.1 and 0 on
+among 2, 3, 4 and none (−0.44, −0.11, −0.05 and 0 points on CNN; −2.29, −0.17, −0.06 and 0 on
 pixels: one frame in 1,788 at 4, against unbounded influence without), ``outlier`` 25 or 100
 (no frame of either drive reaches 25); one all-1e6 frame at position 10 took the rest of the
 drive from 64.4 % to 0 % before and changes no answer now (docs/RESULTS.md). The standard deviation

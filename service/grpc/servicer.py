@@ -24,7 +24,6 @@ is answered with ``error`` set and the stream goes on.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import functools
 import logging
 from collections.abc import AsyncIterator, Callable
@@ -154,76 +153,74 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
     async def LocalizeStream(
         self, request_iterator: AsyncIterator[pb.StreamRequest], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[pb.StreamResponse]:
-        settings, budget = self.ctx.settings, self.ctx.streams
-        assert budget is not None
+        stream = await self._open_stream(context)
+        batcher = self.ctx.batcher
         try:
-            lease = budget.open()
-        except GridplaceError as exc:  # every stream the server allows is open
-            await _abort(context, exc)
-        stream = FleetStream(self.service, self.sequence,
-                             adaptation=settings.adaptation(),
-                             adapt_by_default=settings.drive_adaptation, lease=lease)  # fmt: skip
-        try:
-            async with contextlib.aclosing(self._frames(stream, request_iterator)) as answers:
-                async for answer in answers:
-                    yield answer
+            if batcher is None:
+                async for request in request_iterator:
+                    try:
+                        self._check_frame(request)
+                        answer = await _off_loop(self.workers.frames, stream.answer,
+                                                 messages.frame(request))  # fmt: skip
+                        yield messages.stream_response(answer)
+                    except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                        yield _frame_error(request, exc)
+                return
+            pending: asyncio.Queue[tuple[pb.StreamRequest, int, asyncio.Future[Any]] | None] = (
+                asyncio.Queue(STREAM_READ_AHEAD)
+            )
+            held = 0  # bytes of the messages read ahead
+            room = asyncio.Event()
+
+            async def read() -> None:
+                nonlocal held
+                try:
+                    async for request in request_iterator:
+                        size = 0
+                        try:
+                            size = self._check_frame(request)
+                            answer = batcher.frame(stream, messages.frame(request))
+                        except GridplaceError as exc:
+                            answer = asyncio.get_running_loop().create_future()
+                            answer.set_exception(exc)
+                        while held and held + size > STREAM_READ_AHEAD_BYTES:
+                            room.clear()
+                            await room.wait()
+                        held += size
+                        await pending.put((request, size, answer))
+                finally:
+                    await pending.put(None)
+
+            reader = asyncio.create_task(read())
+            try:
+                while (item := await pending.get()) is not None:
+                    request, size, answer = item
+                    try:
+                        yield messages.stream_response(await answer)
+                    except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                        yield _frame_error(request, exc)
+                    held -= size
+                    room.set()
+                await reader  # the client's stream ended: surface a broken one
+            finally:
+                reader.cancel()
         finally:  # off the loop: dropping many vehicles' state and trimming the heap take time
             try:
                 asyncio.get_running_loop().run_in_executor(self.workers.frames, stream.close)
             except RuntimeError:  # the pool is shut down: the server is stopping
                 stream.close()
 
-    async def _frames(self, stream: FleetStream, request_iterator: AsyncIterator[pb.StreamRequest]
-                      ) -> AsyncIterator[pb.StreamResponse]:  # fmt: skip
-        """A stream's answers, in order (see the module's docstring)."""
-        batcher = self.ctx.batcher
-        if batcher is None:
-            async for request in request_iterator:
-                try:
-                    self._check_frame(request)
-                    answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
-                    yield messages.stream_response(answer)
-                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
-                    yield _frame_error(request, exc)
-            return
-        pending: asyncio.Queue[tuple[pb.StreamRequest, int, asyncio.Future[Any]] | None] = (
-            asyncio.Queue(STREAM_READ_AHEAD)
-        )
-        held = 0  # bytes of the messages read ahead
-        room = asyncio.Event()
-
-        async def read() -> None:
-            nonlocal held
-            try:
-                async for request in request_iterator:
-                    size = 0
-                    try:
-                        size = self._check_frame(request)
-                        answer = batcher.frame(stream, messages.frame(request))
-                    except GridplaceError as exc:
-                        answer = asyncio.get_running_loop().create_future()
-                        answer.set_exception(exc)
-                    while held and held + size > STREAM_READ_AHEAD_BYTES:
-                        room.clear()
-                        await room.wait()
-                    held += size
-                    await pending.put((request, size, answer))
-            finally:
-                await pending.put(None)
-
-        reader = asyncio.create_task(read())
+    async def _open_stream(self, context: grpc.aio.ServicerContext) -> FleetStream:
+        """A new stream's state, with its lease on the server-wide budget (the call is aborted
+        with ``RESOURCE_EXHAUSTED`` when every stream the server allows is open)."""
+        settings, budget = self.ctx.settings, self.ctx.streams
+        assert budget is not None
         try:
-            while (item := await pending.get()) is not None:
-                request, size, answer = item
-                try:
-                    yield messages.stream_response(await answer)
-                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
-                    yield _frame_error(request, exc)
-                held -= size
-                room.set()
-            await reader  # the client's stream ended: surface a broken one
-        finally:
-            reader.cancel()
+            lease = budget.open()
+        except GridplaceError as exc:
+            await _abort(context, exc)
+        return FleetStream(self.service, self.sequence, adaptation=settings.adaptation(),
+                           adapt_by_default=settings.drive_adaptation, lease=lease)  # fmt: skip
 
     def _check_frame(self, request: pb.StreamRequest) -> int:
         """The message's size, checked against its cap."""
