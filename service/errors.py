@@ -150,6 +150,14 @@ class UnavailableError(GridplaceError):
     grpc_status = "UNAVAILABLE"
 
 
+class CapacityError(UnavailableError):
+    """The server already holds as much of something as its settings allow (open streams,
+    vehicle state): nothing is wrong with the request, retry later."""
+
+    code = "capacity_exhausted"
+    grpc_status = "RESOURCE_EXHAUSTED"
+
+
 def _known() -> list[type[GridplaceError]]:
     """The classes of this module, breadth-first (a base class before its subclasses)."""
     out: list[type[GridplaceError]] = [GridplaceError]

@@ -47,6 +47,27 @@ class Settings(BaseSettings):
         4, ge=2, description="threads running gRPC requests' CPU work off the event loop "
         "(unary Localize calls get at most half of them; streams keep the rest)",
     )  # fmt: skip
+    max_streams: int = Field(
+        64, ge=1, le=100_000, description="open gRPC LocalizeStreams, every client together; "
+        "one more is refused with RESOURCE_EXHAUSTED",
+    )  # fmt: skip
+    max_stream_vehicles: int = Field(
+        8192, ge=1, le=10_000_000, description="vehicle states (a sequence filter, appearance "
+        "statistics) all open streams hold together; a frame that needs one more is answered "
+        "with RESOURCE_EXHAUSTED",
+    )  # fmt: skip
+    max_stream_state_mb: int = Field(
+        1024, ge=1, le=1_048_576, description="MiB of vehicle state all open streams hold "
+        "together (the filters' posteriors, the running statistics); beyond: RESOURCE_EXHAUSTED",
+    )  # fmt: skip
+    max_rest_vehicles: int = Field(
+        10_000, ge=1, le=10_000_000, description="REST vehicles (vehicle_id + vehicle_key) whose "
+        "appearance statistics the server keeps; the least recently seen are forgotten beyond",
+    )  # fmt: skip
+    rest_vehicle_state_mb: int = Field(
+        256, ge=1, le=1_048_576, description="MiB the REST vehicles' appearance statistics hold "
+        "together; the least recently seen are forgotten beyond",
+    )  # fmt: skip
     train_workers: int = Field(2, ge=1, description="embedded training processes")
     job_timeout_s: int = Field(6 * 3600, ge=1, description="a training job's time limit")
     job_retries: int = Field(

@@ -41,6 +41,7 @@ from service.wire import (
 )
 
 router = APIRouter(prefix="/v1", tags=["localize"])
+VEHICLE_FIELDS = ("vehicle_id", "adaptation", "vehicle_key", "reset")
 
 
 def _b64(text: str, field: str) -> bytes:
@@ -57,13 +58,17 @@ def _service(request: Request) -> LocalizationService:
     return request.app.state.context.service  # type: ignore[no-any-return]
 
 
-def _one(result: LocalizeResult) -> Response:
-    """:class:`~service.wire.Localization` as JSON."""
-    return Response(orjson.dumps({
+def _one(result: LocalizeResult, vehicle_key: str | None = None) -> Response:
+    """:class:`~service.wire.Localization` as JSON (``vehicle_key`` when a vehicle's
+    statistics are kept under one)."""
+    body = {
         "map": result.map, "version": result.version, "index": int(result.index[0]),
         "chunk": int(result.chunk[0]), "confidence": float(result.confidence[0]),
         "latency_ms": result.latency_ms, "adapted": result.adapted,
-    }), media_type="application/json")  # fmt: skip
+    }  # fmt: skip
+    if vehicle_key is not None:
+        body["vehicle_key"] = vehicle_key
+    return Response(orjson.dumps(body), media_type="application/json")
 
 
 def _many(result: LocalizeResult) -> Response:
@@ -122,16 +127,16 @@ async def localize(request: Request) -> Response:
     svc = _service(request)
     ctype = request.headers.get("content-type", "")
     if ctype.startswith("multipart/form-data"):
-        name, images, given = await _form(request, ("vehicle_id", "adaptation"))
+        name, images, given = await _form(request, VEHICLE_FIELDS)
         if len(images) != 1:
             raise InvalidInputError(f"send one image here ({len(images)} sent); use /v1/localize/batch")
         if given:  # validated as the JSON body's fields are
             who = VehicleOptions.model_validate(given)
-            return _one(await run_in_threadpool(_localize_vehicle, request, name, who, images))
+            return _one(*await run_in_threadpool(_localize_vehicle, request, name, who, images))
         return _one(await run_in_threadpool(svc.localize_images, name, images))
     req = LocalizeRequest.model_validate_json(await _json_body(request))
-    if req.vehicle_id is not None or req.adaptation is not None:
-        return _one(await run_in_threadpool(_localize_vehicle, request, req.map, req, None))
+    if any(getattr(req, f) is not None for f in VEHICLE_FIELDS):
+        return _one(*await run_in_threadpool(_localize_vehicle, request, req.map, req, None))
     batcher = request.app.state.context.batcher
     if batcher is None or req.image_b64 is not None:
         return _one(await run_in_threadpool(_localize_one, svc, req))
@@ -142,9 +147,9 @@ async def localize(request: Request) -> Response:
 
 
 def _localize_vehicle(request: Request, name: str, req: LocalizeRequest | VehicleOptions,
-                      images: list[tuple[str, bytes]] | None) -> LocalizeResult:  # fmt: skip
-    """One query of a named vehicle: adapted to its earlier queries (or as sent, if asked);
-    the query is ``images`` (a form's file) or the JSON body's."""
+                      images: list[tuple[str, bytes]] | None) -> tuple[LocalizeResult, str | None]:  # fmt: skip
+    """One query of a named vehicle: adapted to its earlier queries sent with its key (or as
+    sent, if asked), and the key; the query is ``images`` (a form's file) or the JSON body's."""
     ctx = request.app.state.context
     svc: LocalizationService = ctx.service
     start = time.perf_counter()
@@ -162,7 +167,8 @@ def _localize_vehicle(request: Request, name: str, req: LocalizeRequest | Vehicl
         kind = "descriptor"
         Q = check_descriptors(_descriptor_row(req), n_features=loaded.n_features, what="descriptor")
     Q = one_descriptor(Q, loaded, "a query")
-    return answer_vehicle(svc, ctx.vehicles, loaded, Q, start, kind, req.vehicle_id, req.adaptation)
+    return answer_vehicle(svc, ctx.vehicles, loaded, Q, start, kind, req.vehicle_id,
+                          req.adaptation, req.vehicle_key, req.reset)  # fmt: skip
 
 
 def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:

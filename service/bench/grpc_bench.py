@@ -35,7 +35,7 @@ from rich.table import Table
 
 from service.api.process import ServerProcess, free_port
 from service.bench.batching_grid import best_wait, measure_wait_grid
-from service.bench.grpc_floor import measure_floor
+from service.bench.grpc_floor import FloorServer, fleet_efficiency
 from service.bench.serve_bench import _batch, _pct, _single, bench_data
 from service.encoding import ModelParams, build_model
 from service.encoding.synthetic import smooth_route
@@ -169,6 +169,7 @@ def _throughput(target: str, Q: np.ndarray, period: int, frames: int, n_streams:
             "client_ms": _pct([1000 * t for t in latency]),
             "client_raw": [1000 * t for t in latency],
             "server_ms": _pct([a.latency_ms for g in got for a in g]),
+            "adapted_fraction": float(np.mean([a.adapted for g in got for a in g])),
             "index": index.tolist(),
             "place_precision_at_5": float(np.mean(np.abs(index % period - truth) <= 5))}  # fmt: skip
 
@@ -246,9 +247,10 @@ def _round(target: str, c: httpx.Client, qry: np.ndarray, period: int, frames: i
 
 def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarray, period: int,
                  frames: int, n_streams: int, window: int, rest_batch: int, compare: bool,
-                 rounds: int = 3) -> list[dict[str, Any]]:  # fmt: skip
-    """The micro-batched server and (``compare``) one without batching, both up at once,
-    measured in alternating rounds so that both see the same load."""
+                 floor: bool, rounds: int = 3) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:  # fmt: skip
+    """The micro-batched server, (``compare``) one without batching and (``floor``) the
+    do-nothing gRPC server, all up at once, measured in alternating rounds so that all see
+    the same load; the floor's streams right after the batched server's in each round."""
     modes = [True, False] if compare else [True]
     with contextlib.ExitStack() as stack:
         servers = []
@@ -261,13 +263,19 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
             srv.wait_ready(120)
             client = stack.enter_context(httpx.Client(base_url=srv.url, timeout=60))
             servers.append((f"127.0.0.1:{port}", client, srv.proc.pid if srv.proc else None))
+        floor_at = stack.enter_context(FloorServer()) if floor else None
         rounds_out: list[list[dict[str, Any]]] = [[] for _ in modes]
+        floor_out: list[dict[str, Any]] = []
         per = max(n_streams, frames // rounds)
         for k in range(rounds):
             for (target, client, pid), got in zip(servers, rounds_out, strict=True):
                 with console.status(f"round {k + 1}/{rounds}: measuring {target}…"):
                     got.append(_round(target, client, qry, period, per, n_streams, window,
                                       rest_batch, pid))  # fmt: skip
+                if floor_at is not None and got is rounds_out[0]:
+                    with console.status(f"round {k + 1}/{rounds}: the gRPC floor…"):
+                        floor_out.append(_throughput(floor_at[0], qry, period, per, n_streams,
+                                                     window, pid=floor_at[1]))  # fmt: skip
         with console.status("sequence filter through the micro-batched server…"):
             filtering = _filtering(servers[0][0], noisy_q, frames)
     runs = []
@@ -275,7 +283,11 @@ def _measure_all(data_dir: Path, token: str, qry: np.ndarray, noisy_q: np.ndarra
         run = {"batching": batching, **{key: _merge([g[key] for g in got]) for key in got[0]}}
         runs.append(run)
     runs[0]["sequence_filter"] = filtering
-    return runs
+    floor_run = None
+    if floor_out:
+        floor_run = _merge(floor_out)
+        floor_run.pop("index")
+    return runs, floor_run
 
 
 def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, noise: float,
@@ -290,12 +302,8 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         with console.status(f"fitting the {n_frames}-frame maps…"):
             fit_s = _fit_publish(data_dir, "bench", ref, params)
             _fit_publish(data_dir, "noisy", noisy.reference, params)
-        runs = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams, window,
-                            rest_batch, compare)  # fmt: skip
-        floor_run = None
-        if floor:
-            with console.status("the gRPC floor (a server that does no work)…"):
-                floor_run = measure_floor(qry, period, frames, n_streams, window)
+        runs, floor_run = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams,
+                                       window, rest_batch, compare, floor)  # fmt: skip
         grid = None
         if wait_grid:
             with console.status(f"micro-batch waits {wait_grid} ms…"):
@@ -320,13 +328,15 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         "unbatched": runs[1] if compare else None,
         "batched_answers_equal_unbatched": same,
         "grpc_floor_streams": floor_run,
+        "fleet_efficiency": None if floor_run is None else fleet_efficiency(runs[0][key], floor_run),
         "batch_wait_grid": grid,
         "batch_wait_best_ms": None if grid is None else best_wait(grid),
         "transport": "loopback, plaintext HTTP/2 (grpc.aio client) and HTTP/1.1 (httpx); "
                      "client and server on the same cores; stream latency measured by the "
                      f"client with at most {window} frames in flight per stream; stream frames "
                      "adapted by the server's default (GRIDPLACE_DRIVE_ADAPTATION) except the "
-                     "sequence-filter drive's",
+                     "sequence-filter drive's; the floor's streams measured right after the "
+                     "micro-batched server's in each round",
     }
     _print(report, n_streams)
     out.write_text(json.dumps(report, indent=2))
@@ -374,6 +384,10 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
                       f"{fl['frames_per_s']:.0f} frames/s, p50 {fl['client_ms']['p50']:.1f} ms, "
                       f"p99 {fl['client_ms']['p99']:.1f} ms; CPU/frame server "
                       f"{fl['server_cpu_us_per_frame']:.0f} µs, client {fl['client_cpu_us_per_frame']:.0f} µs")  # fmt: skip
+        fe = r["fleet_efficiency"]
+        console.print(f"[bold]fleet efficiency[/]: server CPU per frame, {n_streams} streams "
+                      f"({fe['adapted_fraction']:.0%} of frames adapted), {fe['ratio']:.2f}× the "
+                      f"floor's (target ≤ {fe['target_ratio']}×)")  # fmt: skip
     if r.get("batch_wait_grid"):
         g = Table(title=f"GRIDPLACE_BATCH_MAX_WAIT_MS, {n_streams} streams (alternating rounds)")
         for col in ("wait ms", "frames/s", "p50 / p99 ms", "server CPU µs/frame", "unary p50 ms",

@@ -3,7 +3,9 @@
 ``python -m service.bench.grpc_floor PORT`` serves ``gridplace.v1.Localization`` whose
 ``LocalizeStream`` answers every frame at once with a constant answer (no validation, no model,
 no batching). Measured with the benchmark's own client, it is what transport alone costs, so a
-target beyond it cannot be met by the service's code. Used by ``gridplace bench grpc --floor``.
+target beyond it cannot be met by the service's code. Used by ``gridplace bench grpc --floor``,
+which measures it in the same rounds as gridplace and gives gridplace's server CPU per frame
+against it (:func:`fleet_efficiency`; target ``FLEET_TARGET``).
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import grpc
-import numpy as np
 
 from service.api.process import free_port
 from service.grpc.gen import localization_pb2 as pb
@@ -40,31 +41,38 @@ async def _serve(port: int) -> None:
     await server.wait_for_termination()
 
 
-def measure_floor(qry: np.ndarray, period: int, frames: int, n_streams: int, window: int,
-                  rounds: int = 3) -> dict[str, Any]:  # fmt: skip
-    """The benchmark's stream measurement against the do-nothing server (rounds merged)."""
-    from service.bench.grpc_bench import _merge, _throughput
+class FloorServer:
+    """``with FloorServer() as (target, pid):`` the do-nothing server in a child process."""
 
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "service.bench.grpc_floor", str(port)],
-                            stdout=subprocess.PIPE)  # fmt: skip
-    try:
-        assert proc.stdout is not None
-        if proc.stdout.readline().strip() != b"ready":
+    def __enter__(self) -> tuple[str, int]:
+        self.port = free_port()
+        self.proc = subprocess.Popen([sys.executable, "-m", "service.bench.grpc_floor", str(self.port)],
+                                     stdout=subprocess.PIPE)  # fmt: skip
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != b"ready":
+            self.__exit__()
             raise RuntimeError("the gRPC floor server did not start")
-        per = max(n_streams, frames // rounds)
-        parts = [_throughput(f"127.0.0.1:{port}", qry, period, per, n_streams, window, pid=proc.pid)
-                 for _ in range(rounds)]  # fmt: skip
-    finally:
-        proc.terminate()
+        return f"127.0.0.1:{self.port}", self.proc.pid
+
+    def __exit__(self, *exc: object) -> None:
+        self.proc.terminate()
         try:
-            proc.wait(10)
+            self.proc.wait(10)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    out = _merge(parts)
-    out.pop("index")
-    return out
+            self.proc.kill()
+            self.proc.wait()
+
+
+FLEET_TARGET = 1.3  # server CPU per frame, 8 adapted streams, against the floor's
+
+
+def fleet_efficiency(streams: dict[str, Any], floor: dict[str, Any]) -> dict[str, Any]:
+    """gridplace's server CPU per stream frame against the do-nothing server's, same run."""
+    ours, base = streams["server_cpu_us_per_frame"], floor["server_cpu_us_per_frame"]
+    return {"server_cpu_us_per_frame": ours, "floor_server_cpu_us_per_frame": base,
+            "ratio": ours / base, "target_ratio": FLEET_TARGET,
+            "adapted_fraction": streams.get("adapted_fraction"),
+            "frames_per_s": streams["frames_per_s"], "floor_frames_per_s": floor["frames_per_s"]}  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -82,7 +82,8 @@ def bench_grpc(
              "code with the ridge trainer)")] = "ridge",
     compare: Annotated[bool, typer.Option(help="also measure a server without micro-batching")] = True,
     floor: Annotated[bool, typer.Option(
-        help="also measure the streams against a server that does no work (the gRPC floor)")] = True,
+        help="also measure the streams against a server that does no work (the gRPC floor), in "
+             "the same rounds, and give gridplace's server CPU per frame against it")] = True,
     wait_grid: Annotated[str, typer.Option(
         help="micro-batch waits to compare, ms, comma-separated (e.g. 0,0.5,2; empty: none)")] = "",
     grid_frames: Annotated[int, typer.Option(help="frames per wait of the grid (5 rounds)")] = 15_000,

@@ -22,6 +22,7 @@ from service.client import calls
 from service.client.calls import Call, ImageSource, RouteSource
 from service.client.client import JobCallback, TimeoutTypes, answer, auth_headers, resolve
 from service.client.errors import JobTimeoutError, transport_error
+from service.client.vehicle_keys import VehicleKeys
 from service.wire import (
     BatchLocalization,
     Health,
@@ -54,6 +55,7 @@ class AsyncGridplaceClient:
     ) -> None:
         self.base_url, self.token = resolve(base_url, token)
         self.upload_timeout = upload_timeout
+        self._keys = VehicleKeys()  # the server's vehicle_key of each vehicle, per map
         self._http = httpx.AsyncClient(base_url=self.base_url, timeout=timeout, transport=transport,
                                        headers={"User-Agent": "gridplace-client", **(headers or {})})  # fmt: skip
 
@@ -85,8 +87,14 @@ class AsyncGridplaceClient:
 
     async def localize(self, map: str, descriptor: ArrayLike | None = None, *,
                        image: ImageSource | None = None, vehicle_id: str | None = None,
-                       adaptation: bool | None = None) -> Localization:  # fmt: skip
-        return await self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation))
+                       adaptation: bool | None = None, vehicle_key: str | None = None,
+                       reset: bool | None = None) -> Localization:  # fmt: skip
+        """:meth:`GridplaceClient.localize` (vehicle keys remembered the same way)."""
+        key = self._keys.key(map, vehicle_id, vehicle_key)
+        answer = await self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation,
+                                                 key, reset))  # fmt: skip
+        self._keys.remember(map, vehicle_id, answer.vehicle_key)
+        return answer
 
     async def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
         return await self._send(calls.localize_batch(map, descriptors))

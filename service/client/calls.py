@@ -144,12 +144,14 @@ def ready() -> Call[Readiness]:
 def localize(
     map_name: str, descriptor: ArrayLike | None, image: ImageSource | None,
     vehicle_id: str | None = None, adaptation: bool | None = None,
+    vehicle_key: str | None = None, reset: bool | None = None,
 ) -> Call[Localization]:  # fmt: skip
     if (descriptor is None) == (image is None):
         raise InvalidInputError("localize needs exactly one of descriptor or image")
     read = _reader(Localization)
-    who: dict[str, Any] = {k: v for k, v in (("vehicle_id", vehicle_id), ("adaptation", adaptation))
-                           if v is not None}  # fmt: skip
+    fields = (("vehicle_id", vehicle_id), ("adaptation", adaptation),
+              ("vehicle_key", vehicle_key), ("reset", reset))  # fmt: skip
+    who: dict[str, Any] = {k: v for k, v in fields if v is not None}
     if image is not None:
         name, data = _read_image(image)
         form = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in who.items()}

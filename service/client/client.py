@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 from service.client import calls
 from service.client.calls import DEFAULT_URL, Call, ImageSource, RouteSource
 from service.client.errors import JobTimeoutError, error_from_response, transport_error
+from service.client.vehicle_keys import VehicleKeys
 from service.wire import (
     BatchLocalization,
     Health,
@@ -87,6 +88,7 @@ class GridplaceClient:
     ) -> None:
         self.base_url, self.token = resolve(base_url, token)
         self.upload_timeout = upload_timeout
+        self._keys = VehicleKeys()  # the server's vehicle_key of each vehicle, per map
         self._http = httpx.Client(base_url=self.base_url, timeout=timeout, transport=transport,
                                   headers={"User-Agent": "gridplace-client", **(headers or {})})  # fmt: skip
 
@@ -134,12 +136,19 @@ class GridplaceClient:
     # -- localization -----------------------------------------------------------------------
     def localize(self, map: str, descriptor: ArrayLike | None = None, *,
                  image: ImageSource | None = None, vehicle_id: str | None = None,
-                 adaptation: bool | None = None) -> Localization:  # fmt: skip
+                 adaptation: bool | None = None, vehicle_key: str | None = None,
+                 reset: bool | None = None) -> Localization:  # fmt: skip
         """One query: a descriptor (d floats, sent as base64 float32) or an encoded image
         (bytes or a file path; the map's stored extractor turns it into a descriptor).
         With ``vehicle_id`` the server adapts the query to that vehicle's earlier ones
-        (appearance adaptation; ``adaptation=False`` sends it as it is)."""
-        return self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation))
+        (appearance adaptation; ``adaptation=False`` sends it as it is). The server keeps a
+        vehicle's statistics under the ``vehicle_key`` its first answer carries; this client
+        remembers it per map and vehicle and sends it again (pass ``vehicle_key`` to use
+        another, ``reset=True`` to start the vehicle's drive over)."""
+        key = self._keys.key(map, vehicle_id, vehicle_key)
+        answer = self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation, key, reset))
+        self._keys.remember(map, vehicle_id, answer.vehicle_key)
+        return answer
 
     def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
         """Many descriptors (an n × d matrix) in one binary little-endian float32 request."""

@@ -12,6 +12,9 @@ requests sent alone (the decoder certifies index and chunk against float64, so B
 batch-size-dependent rounding cannot change them; confidences agree to float32 rounding),
 and a stream's frames, submitted in order, are finished in order — the vehicle's sequence
 filter sees them one by one, exactly as unbatched, with its frame scores computed per frame.
+Frames that are appearance-adapted are adapted together, all vehicles of the batch in one
+vectorised step per frame position (:func:`~service.encoding.adaptation.transform_rows`, the
+same answers as one frame at a time) between validation and the model call.
 While the worker computes one batch the next one queues, so batches grow with load and
 cost no waiting when the server is idle.
 """
@@ -19,6 +22,7 @@ cost no waiting when the server is idle.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import queue
 import threading
@@ -32,22 +36,25 @@ import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.encoding import check_descriptors
+from service.encoding.adaptation import transform_rows
 from service.errors import GridplaceError, UnavailableError
 
 if TYPE_CHECKING:
     from service.core.model_store import LoadedModel
     from service.core.streams import FleetStream, Frame, FrameAnswer
+    from service.encoding.adaptation import AppearanceAdapter
 
 log = logging.getLogger("gridplace.batching")
 
-Prepare = Callable[[], "tuple[LoadedModel, np.ndarray]"]
+#: validate a request: its served version, its query and (stream frames) the adapter to apply
+Prepare = Callable[[], "tuple[LoadedModel, np.ndarray, AppearanceAdapter | None]"]
 
 #: requests larger than this (bytes of descriptors) are computed on their own by the caller's
 #: pool: one bulk query must not hold up the small ones the batcher exists for
 MAX_BATCHED_BYTES = 64 * 1024
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class _Item:
     """One request: how to validate it (``prepare``), and how to turn its raw result into
     the caller's answer (``finish``, e.g. a stream's filter step)."""
@@ -57,12 +64,15 @@ class _Item:
     loop: asyncio.AbstractEventLoop
     future: asyncio.Future[Any]
     start: float = field(default_factory=time.perf_counter)
-    finish: Callable[[LoadedModel, np.ndarray, LocalizeResult, float], Any] | None = None
+    finish: Callable[[LoadedModel, np.ndarray, LocalizeResult, float, bool], Any] | None = None
     outcome: Any = None
     failed: bool = False
+    adapted: bool = False
 
     def fail(self, exc: BaseException) -> None:
-        self.outcome, self.failed = exc, True
+        # without its traceback: the frames it references (and their arrays) are not kept
+        # alive until the caller reads the error (unexpected errors are logged with it first)
+        self.outcome, self.failed = exc.with_traceback(None), True
 
 
 @dataclass(frozen=True)
@@ -125,9 +135,9 @@ class MicroBatcher:
         """:meth:`LocalizationService.localize_bytes`, batched."""
         svc = self.service
 
-        def prepare() -> tuple[LoadedModel, np.ndarray]:
+        def prepare() -> tuple[LoadedModel, np.ndarray, None]:
             loaded = svc.served(name)
-            return loaded, svc.query_bytes(loaded, data, n_features)
+            return loaded, svc.query_bytes(loaded, data, n_features), None
 
         return await self._submit(prepare, kind)  # type: ignore[no-any-return]
 
@@ -135,16 +145,16 @@ class MicroBatcher:
         """:meth:`LocalizationService.localize` of descriptors, batched."""
         svc = self.service
 
-        def prepare() -> tuple[LoadedModel, np.ndarray]:
+        def prepare() -> tuple[LoadedModel, np.ndarray, None]:
             loaded = svc.served(name)
-            return loaded, check_descriptors(X, n_features=loaded.n_features, what="descriptors")
+            return loaded, check_descriptors(X, n_features=loaded.n_features, what="descriptors"), None
 
         return await self._submit(prepare, kind)  # type: ignore[no-any-return]
 
     def frame(self, stream: FleetStream, frame: Frame) -> asyncio.Future[FrameAnswer]:
         """A stream frame's answer (a future: submit frames in order, await them in order)."""
         return self._enqueue(lambda: stream.prepare(frame), "stream",
-                             lambda loaded, Q, raw, start: stream.finish(frame, loaded, Q, raw, start))  # fmt: skip
+                             functools.partial(stream.finish, frame))  # fmt: skip
 
     async def _submit(self, prepare: Prepare, kind: str) -> Any:
         return await self._enqueue(prepare, kind, None)
@@ -196,13 +206,28 @@ class MicroBatcher:
         self._batches += 1
         self._items += len(batch)
         self._largest = max(self._largest, len(batch))
-        groups: dict[int, list[tuple[_Item, LoadedModel, np.ndarray]]] = defaultdict(list)
+        prepared: list[tuple[_Item, LoadedModel, np.ndarray, AppearanceAdapter | None]] = []
         for item in batch:
             try:
-                loaded, Q = item.prepare()
+                prepared.append((item, *item.prepare()))
             except Exception as exc:  # noqa: BLE001 - the item fails, the batch goes on
                 item.fail(_as_gridplace(exc, "validating a localize request"))
-                continue
+        adapted = [k for k, p in enumerate(prepared) if p[3] is not None]
+        if adapted:  # every vehicle of the batch, one vectorised step per frame position
+            try:
+                rows = transform_rows([prepared[k][3] for k in adapted],  # type: ignore[misc]
+                                      [prepared[k][2] for k in adapted])  # fmt: skip
+            except Exception as exc:  # noqa: BLE001 - only the adapted frames fail
+                for k in adapted:
+                    prepared[k][0].fail(_as_gridplace(exc, "adapting stream frames"))
+                prepared = [p for p in prepared if p[3] is None]
+            else:
+                for k, row in zip(adapted, rows, strict=True):
+                    item, loaded, _, adapter = prepared[k]
+                    prepared[k] = (item, loaded, row[None, :], adapter)
+        groups: dict[int, list[tuple[_Item, LoadedModel, np.ndarray]]] = defaultdict(list)
+        for item, loaded, Q, adapter in prepared:
+            item.adapted = adapter is not None
             groups[id(loaded)].append((item, loaded, Q))
         raws: dict[int, tuple[LoadedModel, np.ndarray, LocalizeResult]] = {}
         for members in groups.values():
@@ -225,7 +250,7 @@ class MicroBatcher:
                 item.outcome = raw
                 continue
             try:
-                item.outcome = item.finish(loaded, Q, raw, item.start)
+                item.outcome = item.finish(loaded, Q, raw, item.start, item.adapted)
             except Exception as exc:  # noqa: BLE001
                 item.fail(_as_gridplace(exc, "finishing a stream frame"))
 

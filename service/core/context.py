@@ -15,6 +15,7 @@ from service.core.batching import MicroBatcher
 from service.core.localization import LocalizationService
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import ModelStore
+from service.core.stream_budget import StreamBudget
 from service.core.vehicle_adapters import VehicleAdapters
 from service.settings import Settings
 
@@ -35,11 +36,17 @@ class ServiceContext:
     service: LocalizationService
     batcher: MicroBatcher | None = None  # None: localize inline (``batching`` off)
     vehicles: VehicleAdapters | None = None  # REST vehicles' appearance statistics
+    streams: StreamBudget | None = None  # what open gRPC streams hold, server-wide
     _blas: Any = None
 
     def __post_init__(self) -> None:
+        s = self.settings
         if self.vehicles is None:
-            self.vehicles = VehicleAdapters(self.settings.adaptation())
+            self.vehicles = VehicleAdapters(s.adaptation(), s.max_rest_vehicles,
+                                            s.rest_vehicle_state_mb * 2**20)  # fmt: skip
+        if self.streams is None:
+            self.streams = StreamBudget(s.max_streams, s.max_stream_vehicles,
+                                        s.max_stream_state_mb * 2**20)  # fmt: skip
 
     def start(self) -> None:
         """Start the hot-swap poller (its first pass loads every active version) and the

@@ -142,8 +142,10 @@ class LocalizationService:
         loaded = self.served(name)
         return self._answer(loaded, self.query_bytes(loaded, data, n_features), start, "binary")
 
-    def query_bytes(self, loaded: LoadedModel, data: bytes, n_features: int | None = None) -> np.ndarray:
-        """Validated ``(n, d)`` queries from float32 bytes for ``loaded`` (also used by streams)."""
+    def query_bytes(self, loaded: LoadedModel, data: bytes, n_features: int | None = None,
+                    dtype: type = np.float64) -> np.ndarray:  # fmt: skip
+        """Validated ``(n, d)`` queries from float32 bytes for ``loaded`` (also used by streams),
+        as float64 (or ``dtype=np.float32``: the values as sent, for appearance adaptation)."""
         if n_features is not None and n_features != loaded.n_features:
             raise DimensionMismatchError(
                 f"d={n_features} was declared but map {loaded.map!r} version {loaded.version} "
@@ -151,7 +153,7 @@ class LocalizationService:
             )  # fmt: skip
         X = decode_float32(data, loaded.n_features)  # (n, d) of d = n_features: shape holds
         if np.isfinite(X).all():  # finite as float32 ⇔ finite as float64: nothing else to check
-            return X.astype(np.float64)
+            return X.astype(dtype)
         return check_descriptors(X, n_features=loaded.n_features, what="descriptors")  # raises
 
     def localize_images(self, name: str, images: Sequence[tuple[str, bytes]]) -> LocalizeResult:

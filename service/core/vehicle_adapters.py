@@ -2,11 +2,26 @@
 
 A stream keeps each vehicle's adapter for as long as it is open (:mod:`service.core.streams`);
 a vehicle that calls ``POST /v1/localize`` once per frame names itself with ``vehicle_id``
-instead, and its adapter (:mod:`service.encoding.adaptation`) lives here between requests,
-keyed by map and vehicle. An adapter belongs to one map version: when the served version
-changes it restarts, like a stream's. The least recently seen vehicles are forgotten beyond
-``max_vehicles`` or ``max_bytes`` (a forgotten vehicle starts again from the route's
-statistics: its answers are then those of a fresh drive, never wrong ones). Requests of one
+instead, and its adapter (:mod:`service.encoding.adaptation`) lives here between requests.
+
+**Whose state it is.** ``vehicle_id`` needs no authentication, so it cannot be what a
+vehicle's state is found by: anyone who knows or guesses an id could otherwise send frames
+under it (a frame far outside the statistics is no longer learnt from, but ordinary frames of
+another drive would still pull them away) or reset it. State is kept under ``(map,
+vehicle_id, vehicle_key)``: the first query of a vehicle comes without a key, and the server
+issues one (128 random bits, answered as ``vehicle_key``) under which the statistics are then
+kept; the vehicle sends it with every later query. A caller who does not know the key reaches
+nothing but a drive of its own (a query without a key always starts one); a vehicle may also
+bring its own key (22–128 random URL-safe characters, e.g. provisioned with the vehicle).
+Only a digest of the key is held. ``reset`` with the key forgets the statistics before the
+query. Nothing an unauthenticated caller sends can read, drive or reset another's statistics;
+it can only make the server forget them sooner, by filling the store.
+
+An adapter belongs to one map version: when the served version changes it restarts, like a
+stream's. The least recently seen vehicles are forgotten beyond ``max_vehicles``
+(``GRIDPLACE_MAX_REST_VEHICLES``) or ``max_bytes`` (``GRIDPLACE_REST_VEHICLE_STATE_MB``); a
+forgotten vehicle that sends its key again starts again from the route's statistics, under
+the same key (its answers are then those of a fresh drive, never wrong ones). Requests of one
 vehicle are adapted one at a time in the order they take the lock; with several API replicas
 each keeps its own statistics of the vehicles it serves.
 """
@@ -14,6 +29,8 @@ each keeps its own statistics of the vehicles it serves.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import secrets
 import threading
 
 import numpy as np
@@ -27,15 +44,22 @@ from service.errors import InvalidInputError
 
 MAX_VEHICLES = 10_000
 MAX_BYTES = 256 * 1024 * 1024  # every vehicle's running statistics together
+_KEY_BYTES = 24  # an issued key: 192 random bits, 32 URL-safe characters
+
+Key = tuple[str, str, bytes]  # map, vehicle_id, digest of the vehicle_key
+
+
+def new_vehicle_key() -> str:
+    return secrets.token_urlsafe(_KEY_BYTES)
 
 
 class VehicleAdapters:
-    """Thread-safe LRU of ``(map, vehicle_id)`` → adapter."""
+    """Thread-safe LRU of ``(map, vehicle_id, vehicle_key)`` → adapter."""
 
     def __init__(self, config: AdaptationConfig | None = None, max_vehicles: int = MAX_VEHICLES,
                  max_bytes: int = MAX_BYTES) -> None:  # fmt: skip
         self.config = config or AdaptationConfig()
-        self._state: VehicleState[tuple[str, str], AppearanceAdapter] = VehicleState(
+        self._state: VehicleState[Key, AppearanceAdapter] = VehicleState(
             max_vehicles, max_bytes, lambda a: a.nbytes)  # fmt: skip
         self._lock = threading.Lock()
 
@@ -46,33 +70,43 @@ class VehicleAdapters:
     def nbytes(self) -> int:
         return self._state.nbytes
 
-    def adapt(self, loaded: LoadedModel, vehicle_id: str, Q: np.ndarray, reset: bool = False) -> np.ndarray:
-        """``Q`` (validated rows, the vehicle's next frames in order) adapted to the vehicle's
-        earlier frames on ``loaded``'s map; ``reset`` forgets them first."""
+    def adapt(self, loaded: LoadedModel, vehicle_id: str, Q: np.ndarray,
+              vehicle_key: str | None = None, reset: bool = False) -> tuple[np.ndarray, str]:  # fmt: skip
+        """``Q`` (validated rows, the vehicle's next frames in order) adapted to the earlier
+        frames the vehicle sent with ``vehicle_key`` on ``loaded``'s map (``reset`` forgets
+        them first), and the key they are kept under: ``vehicle_key``, or a new one when it
+        is ``None`` (a new drive)."""
+        key = new_vehicle_key() if vehicle_key is None else vehicle_key
+        digest = hashlib.sha256(key.encode()).digest()
         with self._lock:
             adapter = self._state.current(
-                (loaded.map, vehicle_id), loaded,
+                (loaded.map, vehicle_id, digest), loaded,
                 lambda: AppearanceAdapter.for_model(loaded.model, self.config), restart=reset,
             )  # fmt: skip
-            return adapter.transform(Q)
+            return adapter.transform(Q), key
 
 
 def answer_vehicle(service: LocalizationService, adapters: VehicleAdapters, loaded: LoadedModel,
                    Q: np.ndarray, start: float, kind: str, vehicle_id: str | None,
-                   adapt: bool | None) -> LocalizeResult:  # fmt: skip
+                   adapt: bool | None, vehicle_key: str | None = None,
+                   reset: bool | None = None) -> tuple[LocalizeResult, str | None]:  # fmt: skip
     """Localize validated queries ``Q`` on ``loaded``, adapted to ``vehicle_id``'s earlier
-    frames when adaptation is on for it (``adapt``; unset: ``GRIDPLACE_DRIVE_ADAPTATION``).
-    Without a vehicle there is nothing to adapt to: ``adapt=True`` is then refused."""
+    frames sent with ``vehicle_key`` when adaptation is on for it (``adapt``; unset:
+    ``GRIDPLACE_DRIVE_ADAPTATION``), and the key the vehicle's statistics are kept under
+    (``None`` when the query was not adapted). Without a vehicle there is nothing to adapt
+    to: ``adapt=True``, a key or ``reset`` are then refused."""
     if vehicle_id is not None and len(vehicle_id) > MAX_VEHICLE_ID:
         raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
-    if adapt and vehicle_id is None:
-        raise InvalidInputError(
-            "adaptation needs a vehicle_id: a query is adapted to the same vehicle's earlier "
-            "queries", field="vehicle_id",
-        )  # fmt: skip
-    adapted = False
+    if vehicle_id is None:
+        for name, value in (("adaptation", adapt), ("vehicle_key", vehicle_key), ("reset", reset)):
+            if value:
+                raise InvalidInputError(
+                    f"{name} needs a vehicle_id: a query is adapted to the same vehicle's earlier "
+                    "queries", field="vehicle_id",
+                )  # fmt: skip
+    key = None
     if vehicle_id is not None and adapts(loaded.model, adapt, service.settings.drive_adaptation,
                                          f"map {loaded.map!r} version {loaded.version}"):  # fmt: skip
-        Q, adapted = adapters.adapt(loaded, vehicle_id, Q), True
+        Q, key = adapters.adapt(loaded, vehicle_id, Q, vehicle_key, bool(reset))
     result = service.answer(loaded, Q, start, kind)
-    return dataclasses.replace(result, adapted=adapted) if adapted else result
+    return (dataclasses.replace(result, adapted=True) if key else result), key

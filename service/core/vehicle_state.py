@@ -4,20 +4,30 @@ A vehicle's sequence filter and its appearance adapter are both built from one s
 version: when the version (or the map) behind a key changes, or the caller asks for a
 restart, the state starts afresh, so two models' evidence is never mixed. Entries beyond
 ``max_items``, or beyond ``max_bytes`` of state together, are dropped least recently used
-first (the newest one always stays). Not thread-safe: callers serialise access.
+first (the newest one always stays). Each entry counts its value's bytes and
+``ENTRY_OVERHEAD_BYTES`` for the entry itself (its key of up to 128 characters, the mapping's
+slot; measured with tracemalloc). With a ``lease`` (:mod:`service.core.stream_budget`) every
+entry is also reserved from a server-wide budget before it is kept, and released when it is
+dropped: a new entry the budget cannot hold is refused (``CapacityError``), the store's other
+entries untouched. Not thread-safe: callers serialise access.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 from service.core.model_store import LoadedModel
 
+if TYPE_CHECKING:
+    from service.core.stream_budget import StreamLease
+
 K = TypeVar("K", bound=Hashable)
 V = TypeVar("V")
+
+ENTRY_OVERHEAD_BYTES = 512
 
 
 @dataclass
@@ -31,19 +41,24 @@ class _Entry(Generic[V]):
 class VehicleState(Generic[K, V]):
     """``key`` → state of ``loaded``'s version (:meth:`current`), bounded in count and bytes."""
 
-    def __init__(self, max_items: int, max_bytes: int, nbytes: Callable[[V], int]) -> None:
+    def __init__(self, max_items: int, max_bytes: int, nbytes: Callable[[V], int],
+                 lease: StreamLease | None = None) -> None:  # fmt: skip
         self.max_items = max_items
         self.max_bytes = max_bytes
         self._size = nbytes
+        self._lease = lease
         self._entries: OrderedDict[K, _Entry[V]] = OrderedDict()
         self._bytes = 0
 
     def __len__(self) -> int:
         return len(self._entries)
 
+    def __iter__(self) -> Iterator[K]:
+        return iter(self._entries)
+
     @property
     def nbytes(self) -> int:
-        """Bytes the states hold together."""
+        """Bytes the states hold together (entries included)."""
         return self._bytes
 
     def current(self, key: K, loaded: LoadedModel, start: Callable[[], V],
@@ -54,19 +69,40 @@ class VehicleState(Generic[K, V]):
         if entry is None or restart or entry.map != loaded.map or entry.version != loaded.version:
             self.drop(key)
             value = start()
-            entry = _Entry(loaded.map, loaded.version, value, self._size(value))
+            size = self._size(value) + ENTRY_OVERHEAD_BYTES
+            while self._entries and (
+                len(self._entries) + 1 > self.max_items or self._bytes + size > self.max_bytes
+            ):
+                self._pop(next(iter(self._entries)))  # the least recently used makes room
+            if self._lease is not None:
+                try:
+                    self._lease.reserve(size)  # raises when the server-wide budget is full
+                except Exception:
+                    del value  # not kept alive by the traceback until the error is answered
+                    raise
+            entry = _Entry(loaded.map, loaded.version, value, size)
             self._entries[key] = entry
-            self._bytes += entry.nbytes
+            self._bytes += size
         self._entries.move_to_end(key)
-        while len(self._entries) > 1 and (
-            len(self._entries) > self.max_items or self._bytes > self.max_bytes
-        ):
-            _, old = self._entries.popitem(last=False)  # the least recently used
-            self._bytes -= old.nbytes
         return entry.value
+
+    def get(self, key: K) -> V | None:
+        """``key``'s state as it is (any version), without marking it used."""
+        entry = self._entries.get(key)
+        return None if entry is None else entry.value
 
     def drop(self, key: K) -> None:
         """Forget ``key``'s state (nothing when there is none)."""
-        entry = self._entries.pop(key, None)
-        if entry is not None:
-            self._bytes -= entry.nbytes
+        if key in self._entries:
+            self._pop(key)
+
+    def clear(self) -> None:
+        """Forget every state (released from the lease's budget)."""
+        for key in list(self._entries):
+            self._pop(key)
+
+    def _pop(self, key: K) -> None:
+        entry = self._entries.pop(key)
+        self._bytes -= entry.nbytes
+        if self._lease is not None:
+            self._lease.release(entry.nbytes)

@@ -11,7 +11,11 @@ stream message); the server refuses anything larger than the largest cap before 
 With the micro-batcher (:mod:`service.core.batching`, on unless ``GRIDPLACE_BATCHING=false``)
 descriptor ``Localize`` calls and every stream frame go to its worker thread instead, which
 localizes the frames of all concurrent streams and unary calls together; a ``LocalizeStream``
-then reads ahead up to ``STREAM_READ_AHEAD`` frames and answers them in order.
+then reads ahead up to ``STREAM_READ_AHEAD`` frames (at most ``STREAM_READ_AHEAD_BYTES`` of
+messages) and answers them in order. A stream holds a lease on the server-wide stream budget
+(:mod:`service.core.stream_budget`: ``GRIDPLACE_MAX_STREAMS`` streams, their vehicles and
+bytes); a stream beyond it is refused with ``RESOURCE_EXHAUSTED``, and a closed stream's
+vehicles are dropped and their memory given back.
 Unary errors abort the call with the status of the error's class (``GridplaceError.grpc_status``)
 and its code in the ``gridplace-error`` trailing metadata; in ``LocalizeStream`` a bad message
 is answered with ``error`` set and the stream goes on.
@@ -46,6 +50,7 @@ T = TypeVar("T")
 SERVICE_NAME = pb.DESCRIPTOR.services_by_name["Localization"].full_name
 ADMIN_MESSAGE_BYTES = 64 * 1024  # ListMaps / GetMap requests carry a name at most
 STREAM_READ_AHEAD = 64  # frames of one stream in flight at once (the stream's backpressure)
+STREAM_READ_AHEAD_BYTES = 4 * 1024 * 1024  # and the most bytes of messages they hold together
 
 
 @dataclass(frozen=True)
@@ -148,52 +153,81 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
     async def LocalizeStream(
         self, request_iterator: AsyncIterator[pb.StreamRequest], context: grpc.aio.ServicerContext
     ) -> AsyncIterator[pb.StreamResponse]:
-        settings = self.ctx.settings
-        stream = FleetStream(self.service, self.sequence,
-                             adaptation=settings.adaptation(),
-                             adapt_by_default=settings.drive_adaptation)  # fmt: skip
+        stream = await self._open_stream(context)
         batcher = self.ctx.batcher
-        if batcher is None:
-            async for request in request_iterator:
-                try:
-                    self._check_frame(request)
-                    answer = await _off_loop(self.workers.frames, stream.answer, messages.frame(request))
-                    yield messages.stream_response(answer)
-                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
-                    yield _frame_error(request, exc)
-            return
-        pending: asyncio.Queue[tuple[pb.StreamRequest, asyncio.Future[Any]] | None] = (
-            asyncio.Queue(STREAM_READ_AHEAD)
-        )
-
-        async def read() -> None:
-            try:
+        try:
+            if batcher is None:
                 async for request in request_iterator:
                     try:
                         self._check_frame(request)
-                        answer = batcher.frame(stream, messages.frame(request))
-                    except GridplaceError as exc:
-                        answer = asyncio.get_running_loop().create_future()
-                        answer.set_exception(exc)
-                    await pending.put((request, answer))
-            finally:
-                await pending.put(None)
+                        answer = await _off_loop(self.workers.frames, stream.answer,
+                                                 messages.frame(request))  # fmt: skip
+                        yield messages.stream_response(answer)
+                    except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                        yield _frame_error(request, exc)
+                return
+            pending: asyncio.Queue[tuple[pb.StreamRequest, int, asyncio.Future[Any]] | None] = (
+                asyncio.Queue(STREAM_READ_AHEAD)
+            )
+            held = 0  # bytes of the messages read ahead
+            room = asyncio.Event()
 
-        reader = asyncio.create_task(read())
-        try:
-            while (item := await pending.get()) is not None:
-                request, answer = item
+            async def read() -> None:
+                nonlocal held
                 try:
-                    yield messages.stream_response(await answer)
-                except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
-                    yield _frame_error(request, exc)
-            await reader  # the client's stream ended: surface a broken one
-        finally:
-            reader.cancel()
+                    async for request in request_iterator:
+                        size = 0
+                        try:
+                            size = self._check_frame(request)
+                            answer = batcher.frame(stream, messages.frame(request))
+                        except GridplaceError as exc:
+                            answer = asyncio.get_running_loop().create_future()
+                            answer.set_exception(exc)
+                        while held and held + size > STREAM_READ_AHEAD_BYTES:
+                            room.clear()
+                            await room.wait()
+                        held += size
+                        await pending.put((request, size, answer))
+                finally:
+                    await pending.put(None)
 
-    def _check_frame(self, request: pb.StreamRequest) -> None:
-        _check_size(request.ByteSize(), self.workers.max_frame_bytes, "a stream message",
+            reader = asyncio.create_task(read())
+            try:
+                while (item := await pending.get()) is not None:
+                    request, size, answer = item
+                    try:
+                        yield messages.stream_response(await answer)
+                    except Exception as exc:  # noqa: BLE001 - answered in-stream, the stream goes on
+                        yield _frame_error(request, exc)
+                    held -= size
+                    room.set()
+                await reader  # the client's stream ended: surface a broken one
+            finally:
+                reader.cancel()
+        finally:  # off the loop: dropping many vehicles' state and trimming the heap take time
+            try:
+                asyncio.get_running_loop().run_in_executor(self.workers.frames, stream.close)
+            except RuntimeError:  # the pool is shut down: the server is stopping
+                stream.close()
+
+    async def _open_stream(self, context: grpc.aio.ServicerContext) -> FleetStream:
+        """A new stream's state, with its lease on the server-wide budget (the call is aborted
+        with ``RESOURCE_EXHAUSTED`` when every stream the server allows is open)."""
+        settings, budget = self.ctx.settings, self.ctx.streams
+        assert budget is not None
+        try:
+            lease = budget.open()
+        except GridplaceError as exc:
+            await _abort(context, exc)
+        return FleetStream(self.service, self.sequence, adaptation=settings.adaptation(),
+                           adapt_by_default=settings.drive_adaptation, lease=lease)  # fmt: skip
+
+    def _check_frame(self, request: pb.StreamRequest) -> int:
+        """The message's size, checked against its cap."""
+        size = request.ByteSize()
+        _check_size(size, self.workers.max_frame_bytes, "a stream message",
                     "GRIDPLACE_MAX_STREAM_FRAME_KB")  # fmt: skip
+        return size
 
     async def ListMaps(self, request: pb.ListMapsRequest, context: grpc.aio.ServicerContext) -> pb.ListMapsResponse:
         try:

@@ -14,6 +14,7 @@ BASE64_PATTERN = rf"^(?:{_B64}{{4}})*(?:{_B64}{{2}}==|{_B64}{{3}}=)?$"
 # base64 of a whole number of float32 values: 3 float32 = 12 bytes = 16 characters
 FLOAT32_BASE64_PATTERN = rf"^(?:{_B64}{{16}})*(?:{_B64}{{6}}==|{_B64}{{11}}=)?$"
 _BASE64 = re.compile(BASE64_PATTERN)
+VEHICLE_KEY_PATTERN = r"^[A-Za-z0-9_-]{22,128}$"
 
 
 def _base64(text: str) -> str:
@@ -58,6 +59,18 @@ class VehicleOptions(Request):
     adaptation: bool | None = Field(
         None, description="appearance adaptation (needs vehicle_id); unset: the server's "
         "default (GRIDPLACE_DRIVE_ADAPTATION) when a vehicle_id is given",
+    )
+    vehicle_key: str | None = Field(
+        None, pattern=VEHICLE_KEY_PATTERN,
+        description="the vehicle's credential: its statistics are kept under vehicle_id and "
+        "this key, so only a caller that knows it continues (or resets) them. Unset: the "
+        "server issues a new key (a new drive) and answers it; send it with the vehicle's "
+        "later queries. A caller may also choose its own (22–128 random characters of "
+        "A-Z a-z 0-9 _ -)",
+    )
+    reset: bool | None = Field(
+        None, description="forget the vehicle's statistics (vehicle_id + vehicle_key) before "
+        "this query, e.g. at the start of a new traversal",
     )
 
 
@@ -104,6 +117,10 @@ class Localization(Answer):
     confidence: float = Field(ge=0.0, le=1.0)
     latency_ms: float = Field(description="server-side time in the service layer")
     adapted: bool = Field(False, description="the query was adapted to the vehicle's earlier ones")
+    vehicle_key: str | None = Field(
+        None, description="the key the vehicle's statistics are kept under (set when they "
+        "were): send it with the vehicle's next query",
+    )
 
 
 class BatchLocalization(Answer):

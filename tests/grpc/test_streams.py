@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 
 from service.core.context import ServiceContext, build_context
-from service.core.streams import FleetStream, Frame
+from service.core.stream_budget import BudgetUse, StreamBudget
+from service.core.streams import FILTER_OVERHEAD_BYTES, FleetStream, Frame
+from service.core.vehicle_state import ENTRY_OVERHEAD_BYTES
 from service.encoding import ModelParams, PhaseEncoder, build_model
-from service.encoding.adaptation import AdaptationConfig, adapt_drive
+from service.encoding.adaptation import ADAPTER_OVERHEAD_BYTES, AdaptationConfig, adapt_drive
 from service.encoding.synthetic import smooth_route
-from service.errors import DimensionMismatchError, InvalidInputError, InvalidParameterError
+from service.errors import (
+    CapacityError,
+    DimensionMismatchError,
+    InvalidInputError,
+    InvalidParameterError,
+    UnavailableError,
+)
 from service.registry import Registry
 from service.settings import Settings
 
@@ -85,7 +93,8 @@ def test_filters_are_dropped_least_recent_first_beyond_the_byte_budget(
     ctx: tuple[ServiceContext, np.ndarray],
 ) -> None:
     context, Q = ctx
-    per_vehicle = 4 * 7 * N  # one posterior: S = 7 speeds × N frames of float32
+    # one posterior (S = 7 speeds × N frames of float32), the filter's objects, the entry
+    per_vehicle = 4 * 7 * N + FILTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
     stream = FleetStream(context.service, max_filter_bytes=2 * per_vehicle)
     for vehicle in ("a", "b", "c"):
         stream.answer(frame(Q, 10, vehicle, sequence_filter=True))
@@ -132,11 +141,53 @@ def test_a_map_without_route_statistics_is_not_adapted(ctx: tuple[ServiceContext
 
 def test_adapters_are_dropped_least_recent_first(ctx: tuple[ServiceContext, np.ndarray]) -> None:
     context, Q = ctx
-    stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * 24 * D)
-    for vehicle in ("a", "b", "c"):  # one adapter: a float64 mean, variance and last frame per column
+    # one adapter: a float32 mean, variance and last frame per column, its objects, the entry
+    per_vehicle = 12 * D + ADAPTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
+    stream = FleetStream(context.service, adapt_by_default=True, max_adapter_bytes=2 * per_vehicle)
+    for vehicle in ("a", "b", "c"):
         stream.answer(frame(Q, 10, vehicle))
     assert stream.adapted_vehicles == 2
     limited = FleetStream(context.service, adapt_by_default=True, max_vehicles=1)
     for vehicle in ("a", "b"):
         limited.answer(frame(Q, 10, vehicle))
     assert limited.adapted_vehicles == 1
+
+
+def test_the_server_wide_budget_bounds_streams_and_vehicles(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    """Two streams share a budget of three vehicle states: the frame that needs a fourth is
+    refused (the stream and its other vehicles go on); a closed stream gives its states and its
+    place back, and frames sent after it closed are refused and keep nothing."""
+    context, Q = ctx
+    budget = StreamBudget(max_streams=2, max_states=3, max_bytes=1 << 30)
+    one = FleetStream(context.service, adapt_by_default=True, lease=budget.open())
+    two = FleetStream(context.service, adapt_by_default=True, lease=budget.open())
+    with pytest.raises(CapacityError, match="GRIDPLACE_MAX_STREAMS=2"):
+        budget.open()
+    one.answer(frame(Q, 1, "a", sequence_filter=True))  # a filter and an adapter: two states
+    two.answer(frame(Q, 1, "b"))
+    with pytest.raises(CapacityError, match="GRIDPLACE_MAX_STREAM_VEHICLES=3"):
+        two.answer(frame(Q, 2, "c"))
+    assert two.answer(frame(Q, 2, "b")).adapted and two.adapted_vehicles == 1
+    assert one.answer(frame(Q, 2, "a", sequence_filter=True)).frames_used == 2
+    use = budget.use()
+    assert (use.streams, use.states) == (2, 3) and use.nbytes == one.lease.nbytes + two.lease.nbytes
+    one.close()
+    assert budget.use().states == 1 and budget.use().streams == 1
+    with pytest.raises(UnavailableError, match="ended"):
+        one.answer(frame(Q, 3, "a"))
+    assert one.adapted_vehicles == 0 and one.vehicles == 0
+    three = FleetStream(context.service, adapt_by_default=True, lease=budget.open())
+    three.answer(frame(Q, 1, "c", sequence_filter=True))
+    two.close()
+    three.close()
+    assert budget.use() == BudgetUse(0, 0, 0)
+
+
+def test_a_refused_state_is_not_kept(ctx: tuple[ServiceContext, np.ndarray]) -> None:
+    context, Q = ctx
+    budget = StreamBudget(max_streams=1, max_states=100, max_bytes=10_000)  # no room for a filter
+    stream = FleetStream(context.service, lease=budget.open())
+    with pytest.raises(CapacityError, match="GRIDPLACE_MAX_STREAM_STATE_MB"):
+        stream.answer(frame(Q, 1, "a", sequence_filter=True))
+    assert stream.vehicles == 0 and budget.use() == BudgetUse(1, 0, 0)
+    assert not stream.answer(frame(Q, 2, "a")).filtered  # unfiltered frames need no state

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from service.cli import app
 from service.encoding import PhaseEncoder, load_model, save_model
-from service.encoding.adaptation import adapt_drive
+from service.encoding.adaptation import AdaptationConfig, adapt_drive
 from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.synthetic import smooth_route
 
@@ -144,7 +144,7 @@ def test_evaluate_adapts_the_queries_unless_told_not_to(files: dict[str, Path]) 
     Q = np.load(files["query"])
     code, stdout, _ = invoke("evaluate", files["model"], files["query"], "--tolerance", "2", "--json")
     on = json.loads(stdout)
-    assert code == 0 and on["adaptation"] == {"alpha": 0.02, "novelty": 1.0}
+    assert code == 0 and on["adaptation"] == AdaptationConfig().model_dump()
     truth = np.arange(Q.shape[0])
     adapted = model.localize(adapt_drive(model, Q)).index
     assert on["precision"] == pytest.approx(np.mean(np.abs(adapted - truth) <= 2))
