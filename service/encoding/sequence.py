@@ -111,6 +111,12 @@ class SequenceConfig(BaseModel):
             )
             raise InvalidParameterError(f"invalid sequence filter parameters: {msgs}") from exc
 
+    @property
+    def n_states(self) -> int:
+        """Rows of a filter's state: grid speeds (both directions with ``reverse``), plus the
+        stopped state when ``stop_probability > 0``; one update costs ``O(n_states · N)``."""
+        return int(self.speeds().size) + int(self.stop_probability > 0)
+
     def speeds(self) -> np.ndarray:
         """The speed grid (ascending; negative speeds too with ``reverse``)."""
         n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
