@@ -156,7 +156,7 @@ def is_index_list(places: Any) -> bool:
 
 def check_places(places: Any, n_rows: int, what: str = "the place index") -> np.ndarray:
     """One traversal's place index as int64, or a precise error: 1-D, integer, one entry per
-    row, no negative entry."""
+    row, no negative entry, none beyond int64."""
     try:
         idx = np.asarray(places)
     except (ValueError, TypeError) as exc:
@@ -177,6 +177,12 @@ def check_places(places: Any, n_rows: int, what: str = "the place index") -> np.
         row = int(np.argmax(idx < 0))
         raise InvalidInputError(
             f"{what} has a negative place {int(idx[row])} at row {row}: places are 0…N−1",
+            row=row,
+        )
+    if idx.dtype.kind == "u" and idx.size and idx.max() > np.iinfo(np.int64).max:
+        row = int(np.argmax(idx > np.iinfo(np.int64).max))
+        raise InvalidInputError(
+            f"{what} has place {int(idx[row])} at row {row}, beyond any route: places are 0…N−1",
             row=row,
         )
     return idx.astype(np.int64, copy=False)

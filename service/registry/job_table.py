@@ -27,6 +27,7 @@ from service.wire import JobProgress, PartProgress
 MAX_IDEMPOTENCY_KEY = 200
 MAX_RETRIES_KEPT = 200
 MAX_PAGE = 500
+MAX_CURSOR_CHARS = 256  # a cursor of encode_cursor is about 100
 _OPEN = "state IN ('queued', 'running')"
 
 
@@ -44,15 +45,28 @@ def encode_cursor(job: JobInfo) -> str:
 
 
 def decode_cursor(cursor: str) -> tuple[str, str]:
+    """The position a cursor of :func:`encode_cursor` names; anything else (too long, nested,
+    holding a NUL, which PostgreSQL's text cannot) is invalid input."""
+    shown = cursor[:80] + ("…" if len(cursor) > 80 else "")
     try:
+        if len(cursor) > MAX_CURSOR_CHARS:
+            raise ValueError(f"longer than {MAX_CURSOR_CHARS} characters")
         raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4))
+        if raw[:1] != b"[" or raw.count(b"[") != 1:
+            raise ValueError("not a position")
         created_at, job_id = json.loads(raw)
         if not isinstance(created_at, str) or not isinstance(job_id, str):
             raise ValueError(cursor)
+        if "\x00" in created_at or "\x00" in job_id:
+            raise ValueError("holds a NUL")
         from_text(created_at)
-    except (ValueError, TypeError) as exc:
-        raise InvalidInputError(f"invalid job list cursor {cursor!r}", cursor=cursor) from exc
+    except (ValueError, TypeError, RecursionError) as exc:
+        raise InvalidInputError(f"invalid job list cursor {shown!r}", cursor=shown) from exc
     return created_at, job_id
+
+
+def _no_job(job_id: str) -> NotFoundError:
+    return NotFoundError(f"no training job {job_id!r}", job_id=job_id)
 
 
 def _job_from_row(row: RowMapping) -> JobInfo:
@@ -152,21 +166,25 @@ class JobTable:
         return self.get_job(job_id), True
 
     def get_job(self, job_id: str) -> JobInfo:
+        if "\x00" in job_id:  # no job id holds one (PostgreSQL's text cannot)
+            raise _no_job(job_id)
         with self.db.connect() as conn:
             row = conn.execute(
                 text("SELECT * FROM jobs WHERE id = :j"), {"j": job_id}
             ).mappings().first()  # fmt: skip
         if row is None:
-            raise NotFoundError(f"no training job {job_id!r}", job_id=job_id)
+            raise _no_job(job_id)
         return _job_from_row(row)
 
     def get_job_spec(self, job_id: str) -> JobSpec:
+        if "\x00" in job_id:
+            raise _no_job(job_id)
         with self.db.connect() as conn:
             row = conn.execute(
                 text("SELECT spec FROM jobs WHERE id = :j"), {"j": job_id}
             ).mappings().first()  # fmt: skip
         if row is None:
-            raise NotFoundError(f"no training job {job_id!r}", job_id=job_id)
+            raise _no_job(job_id)
         return JobSpec.model_validate_json(row["spec"])
 
     def route_path(self, spec: JobSpec) -> Path:

@@ -185,6 +185,8 @@ BAD_INPUT = [
      "2 traversals need 2 place-index arrays"),
     ("negative", A5, np.array([0, 1, -2, 3, 4]), InvalidInputError,
      "negative place -2 at row 2"),
+    ("uint64 beyond int64", A5, np.array([0, 1, 2, 3, 2**63], dtype=np.uint64),
+     InvalidInputError, "place 9223372036854775808 at row 4, beyond any route"),
     ("missing place", A5, np.array([0, 1, 3, 3, 4]), InvalidInputError,
      "places 2 have no row"),
     ("place beyond rows", A5, np.array([0, 1, 2, 3, 9]), InvalidInputError,
