@@ -12,10 +12,11 @@ from service.encoding.decoding import DECODE_MODES, decode
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
 from service.encoding.front_end import FrontEnd
-from service.encoding.patterns import n_selected
+from service.encoding.inverted_file import InvertedFile, Search, check_search, uses_ivf
+from service.encoding.patterns import n_selected, select_columns
 from service.encoding.phases import auto_periods, index_to_labels, validate_periods
 from service.encoding.progress import ProgressFn, Steps
-from service.encoding.prototype import DEFAULT_TEMPERATURE
+from service.encoding.prototype import DEFAULT_TEMPERATURE, stream_frame_prototypes
 from service.encoding.quantization import check_dtype
 from service.encoding.residue import CODES, residue_periods, validate_residue_periods
 from service.encoding.serving_plan import plan_for
@@ -57,6 +58,11 @@ class PhaseEncoder(PlaceRecognizer):
     auto_width : choose the projection width from the route: at most ``n_components``, at
         most 0.7 of the training rows, and the model within ``N·d`` bytes, exact NN on the
         route's uint8 rows (:mod:`service.encoding.projection_width`).
+    search : how a model with one class per frame (``k = 1``) answers: ``flat`` scans every
+        frame (exact), ``ivf`` through an inverted file of its prototypes, ``auto`` the
+        inverted file on long routes (:mod:`service.encoding.inverted_file`).
+    nlist, nprobe : lists of the inverted file and lists scanned per query (``None``: ≈ 4√N
+        and 1/32 of them, at least 16).
 
     The constructor's defaults are the paper's algorithm, so the parameters recorded in older
     artifacts keep their meaning; the product default is the ``robust`` preset
@@ -85,6 +91,9 @@ class PhaseEncoder(PlaceRecognizer):
         whiten_power: float = 0.75,
         temperature: float | None = None,
         auto_width: bool = False,
+        search: str = "auto",
+        nlist: int | None = None,
+        nprobe: int | None = None,
     ) -> None:
         self.n_patterns = n_patterns
         self.periods = periods
@@ -104,6 +113,9 @@ class PhaseEncoder(PlaceRecognizer):
         self.whiten_power = whiten_power
         self.temperature = temperature
         self.auto_width = auto_width
+        self.search = search
+        self.nlist = nlist
+        self.nprobe = nprobe
 
     # -- fitting ------------------------------------------------------------------------
     def _validate_params(self, n_features: int) -> None:
@@ -116,6 +128,11 @@ class PhaseEncoder(PlaceRecognizer):
                 f"unknown decode mode {self.decode!r}; choose one of {DECODE_MODES}"
             )
         check_dtype(self.dtype)
+        check_search(self.search)
+        for name in ("nlist", "nprobe"):
+            value = getattr(self, name)
+            if value is not None and int(value) < 1:
+                raise InvalidParameterError(f"{name} must be >= 1, got {value}")
         if self.code not in CODES:
             raise InvalidParameterError(f"unknown code {self.code!r}; choose one of {CODES}")
         if not self.code_ratio > 0:
@@ -144,15 +161,47 @@ class PhaseEncoder(PlaceRecognizer):
         ``progress(detail, done, total)`` follows the classes of every digit
         (:mod:`service.encoding.progress`)."""
         del y  # the labels are the places (the row order of one traversal)
-        tr = as_traversals(X, places)
+        tr = as_traversals(X, places, keep_dtype=True)  # float32 rows stay float32 (a map)
         X = tr.rows
         self._validate_params(X.shape[1])
         width = self._front_width(tr.n_places, X.shape[0], X.shape[1])
         front = FrontEnd.fit(X, bool(self.normalize), width, float(self.whiten_power), self.dtype)
-        self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
+        if self._one_prototype_per_row(tr.places, tr.n_traversals, X.shape[0]):
+            self._fit_streamed(X, front, progress)
+        else:
+            self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
         self.normalizer_ = front if front.normalizer or front.projection else None
+        self.ivf_ = self._fit_inverted_file()
         self._set_fitted(self.n_frames_, X.shape[1], tr.n_traversals)
         return self
+
+    def _one_prototype_per_row(self, places: np.ndarray | None, n_traversals: int,
+                               n_rows: int) -> bool:  # fmt: skip
+        """One traversal, ``prototype`` classes of one frame each, every column kept: the
+        class means are the rows themselves, fitted in row blocks."""
+        return (places is None and n_traversals == 1 and self.trainer == "prototype"
+                and len(self.periods_for(n_rows)) == 1 and float(self.rho) == 1.0)  # fmt: skip
+
+    def _fit_streamed(self, X: np.ndarray, front: FrontEnd, progress: ProgressFn | None) -> None:
+        """:meth:`_fit_normalised` of one prototype per row, the route streamed in blocks
+        through the front-end (:func:`service.encoding.prototype.stream_frame_prototypes`)."""
+        n = X.shape[0]
+        self.periods_ = self.periods_for(n)
+        steps = Steps(progress, ["digit 1/1"], self.periods_)
+        linear, scores = stream_frame_prototypes(X, front.transform, self.dtype, steps.step(0))
+        steps.done(0)
+        pattern = select_columns(scores, float(self.rho), self.gamma)
+        self.digits_ = [DigitClassifier(pattern.columns, linear, pattern, self._temperature())]
+        self._set_fitted(n, int(linear.weight.shape[1]), 1)
+
+    def _fit_inverted_file(self) -> InvertedFile | None:
+        """The inverted file of a one-class-per-frame model whose ``search`` asks for one."""
+        if len(self.digits_) != 1 or not uses_ivf(self.search, self.n_frames_):
+            return None
+        lin = self.digits_[0].linear
+        nlist = None if self.nlist is None else min(int(self.nlist), self.n_frames_)
+        return InvertedFile.fit(lin.weight, lin.scale, nlist, self.nprobe,
+                                seed=int(self.random_state or 0))  # fmt: skip
 
     def _front_width(self, n_places: int, n_rows: int, n_features: int) -> int | None:
         """The projection width to fit: ``n_components``, or chosen by ``auto_width``."""
@@ -252,10 +301,12 @@ class PhaseEncoder(PlaceRecognizer):
         Q = self._check_query(X)
         return plan_for(self).frame_log_scores(Q)
 
-    def localize(self, X: Any) -> Localization:
-        """Exact decode through the serving plan (float32 products, certified in float64)."""
+    def localize(self, X: Any, search: Search | None = None) -> Localization:
+        """Decode through the serving plan: the exact decode (float32 products, certified in
+        float64), or with an inverted file the best of its candidates (``search="flat"``:
+        the exact scan all the same)."""
         Q = self._check_query(X)
-        return plan_for(self).localize(Q)
+        return plan_for(self).localize(Q, search)
 
     # -- storage ------------------------------------------------------------------------
     def footprint(self) -> Footprint:
@@ -267,6 +318,9 @@ class PhaseEncoder(PlaceRecognizer):
             fp.add("masks", width / 8.0, dc.mask_bytes(width))
         if self.normalizer_ is not None:
             self.normalizer_.add_to(fp)
+        ivf = getattr(self, "ivf_", None)
+        if ivf is not None:
+            fp.add("inverted file", 0.0, ivf.nbytes + 8)
         return fp
 
     def _digit_width(self) -> int:
@@ -282,6 +336,8 @@ class PhaseEncoder(PlaceRecognizer):
             arrays.update(dc.to_arrays(f"{prefix}enc.{j}", width))
         if self.normalizer_ is not None:
             arrays.update(self.normalizer_.to_arrays(f"{prefix}norm"))
+        if getattr(self, "ivf_", None) is not None:
+            arrays.update(self.ivf_.to_arrays(f"{prefix}ivf"))
         meta = {
             "n_frames": self.n_frames_,
             "n_features": self.n_features_in_,
@@ -312,6 +368,7 @@ class PhaseEncoder(PlaceRecognizer):
             DigitClassifier.from_arrays(arrays, f"{prefix}enc.{j}", width)
             for j in range(len(model.periods_))
         ]
+        model.ivf_ = InvertedFile.from_arrays(arrays, f"{prefix}ivf", n)
         model._set_fitted(n, d, int(meta.get("n_traversals", 1)))
         return model
 

@@ -81,6 +81,39 @@ class QuantizedLinear:
         )
 
 
+#: int8 weights whose float32 copy takes at most this many bytes are served from that copy
+#: (the fastest products on short routes); larger ones are multiplied from int8 block by block
+#: (:func:`int8_products`), so serving holds no float32 copy of a long route's weights.
+FLOAT32_COPY_BYTES = 32 << 20
+_PRODUCT_ROWS = 8192  # int8 weight rows widened to float32 at a time
+
+
+def int8_products(Z: np.ndarray, weight: np.ndarray, scale: np.ndarray,
+                  out: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """Float32 ``Z @ (scale·W)ᵀ`` of float32 rows ``Z`` ``(n, d')`` and int8 rows ``W``
+    ``(τ, d')`` with per-row ``scale``: ``(Z @ Wᵀ)·scale``, ``W`` widened in row blocks (its
+    integers are exact in float32, so the products differ from those of a float32 copy of
+    ``scale·W`` by float32 rounding only). ``out``: an ``(n, τ)`` float32 array to fill."""
+    n, tau = Z.shape[0], weight.shape[0]
+    if out is None:
+        out = np.empty((n, tau), dtype=np.float32)
+    for s in range(0, tau, _PRODUCT_ROWS):
+        e = min(tau, s + _PRODUCT_ROWS)
+        np.matmul(Z, weight[s:e].astype(np.float32).T, out=out[:, s:e])
+    out *= scale
+    return out
+
+
+def int8_max_row_norm(weight: np.ndarray, scale: np.ndarray) -> float:
+    """Largest ``‖scale_c·w_c‖`` of int8 rows, in row blocks (no float copy of them all)."""
+    best = 0.0
+    for s in range(0, weight.shape[0], _PRODUCT_ROWS):
+        block = weight[s : s + _PRODUCT_ROWS].astype(np.float32)
+        sq = np.einsum("ij,ij->i", block, block, dtype=np.float64)
+        best = max(best, float((np.sqrt(sq) * scale[s : s + _PRODUCT_ROWS]).max(initial=0.0)))
+    return best
+
+
 def pack_columns(columns: np.ndarray, n_features: int) -> np.ndarray:
     """Selected column indices as a bit mask of ``ceil(d/8)`` bytes."""
     mask = np.zeros(n_features, dtype=bool)

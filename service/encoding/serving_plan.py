@@ -35,7 +35,10 @@ from service.encoding.exact_decode import (
     log_softmax_last,
     table_decode,
 )
+from service.encoding.inverted_file import InvertedFile, Search
+from service.encoding.inverted_file import search as ivf_search
 from service.encoding.phases import index_to_labels, place_values
+from service.encoding.quantization import FLOAT32_COPY_BYTES, int8_max_row_norm, int8_products
 from service.encoding.single_query import SingleQueryPath
 
 Precision = Literal["float32", "float64"]
@@ -64,19 +67,33 @@ class DigitBlock:
     kept64: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, compare=False,
                                                          repr=False)  # fmt: skip
 
+    rowscale: np.ndarray | None = None  # (τ,) float32 when ``weight`` is the stored int8
+
     @classmethod
     def of(cls, classifier: Any) -> DigitBlock:
         lin = classifier.linear
+        temperature = float(getattr(classifier, "temperature", None) or 1.0)
+        beta = 1.0 / temperature
+        columns = np.asarray(classifier.columns, dtype=np.int64)
+        bias = lin.bias.astype(np.float64)
+        if lin.scale is not None and lin.weight.size * 4 > FLOAT32_COPY_BYTES:
+            norm = int8_max_row_norm(lin.weight, lin.scale)
+            return cls(columns, lin.weight, bias, lin, beta,
+                       _kappa(lin.weight.shape[1]) * norm * 1.001 * beta,
+                       rowscale=lin.scale.astype(np.float32))  # fmt: skip
         W = lin.weight
         if lin.scale is not None:
             W = W.astype(np.float64) * lin.scale.astype(np.float64)[:, None]
         W32 = np.ascontiguousarray(W, dtype=np.float32)
-        temperature = float(getattr(classifier, "temperature", None) or 1.0)
-        beta = 1.0 / temperature
         norm = float(np.sqrt(np.einsum("ij,ij->i", W32, W32, dtype=np.float64)).max(initial=0.0))
-        return cls(np.asarray(classifier.columns, dtype=np.int64), W32,
-                   lin.bias.astype(np.float64), lin, beta,
+        return cls(columns, W32, bias, lin, beta,
                    _kappa(W32.shape[1]) * norm * 1.001 * beta)  # fmt: skip
+
+    def products(self, Zc: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Float32 ``Zc @ Wᵀ`` of float32 rows already restricted to the columns."""
+        if self.rowscale is not None:
+            return int8_products(Zc, self.weight, self.rowscale, out)
+        return np.matmul(Zc, self.weight.T, out=out)
 
     @property
     def n_classes(self) -> int:
@@ -89,7 +106,7 @@ class DigitBlock:
             W, b = self.dense64()
             prod = Z.take(self.columns, axis=1) @ W.T
         else:  # take() gathers columns ~2x faster than fancy indexing
-            prod, b = Z.take(self.columns, axis=1) @ self.weight.T, self.bias
+            prod, b = self.products(Z.take(self.columns, axis=1)), self.bias
         out = np.add(prod, b, out=out)
         if self.beta != 1.0:
             out *= self.beta
@@ -199,6 +216,9 @@ class ServingPlan:
         self._chunk_error = 0.0 if self.chunk is None else 2.0 * self.chunk.error
         self._tables = any(p.labels is not None or len(p.digits) != self.k for p in self.phases)
         self._single = SingleQueryPath.of(self)
+        ivf = getattr(model, "ivf_", None)  # one class per frame only (one phase, one digit)
+        one_class = self.chunk is None and len(self.phases[0].digits) == 1
+        self.ivf: InvertedFile | None = ivf if one_class else None
 
     # -- helpers --------------------------------------------------------------------
     def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
@@ -251,10 +271,18 @@ class ServingPlan:
         return S
 
     # -- localize -------------------------------------------------------------------
-    def decode(self, Q: np.ndarray, precision: Precision = "float32") -> Decoded:
+    def decode(self, Q: np.ndarray, precision: Precision = "float32",
+               search: Search | None = None) -> Decoded:  # fmt: skip
         """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path), in
         row blocks whose score arrays stay within :data:`_BLOCK_SCORES` entries (a model with
-        one class per frame has ``N`` scores per query)."""
+        one class per frame has ``N`` scores per query). A model with an inverted file answers
+        float32 queries through it unless ``search="flat"`` asks for the exact scan."""
+        if self.ivf is not None and precision == "float32" and search != "flat":
+            dg = self.phases[0].digits[0]
+            Zc = np.ascontiguousarray(self.normalise(Q, np.float32).take(dg.columns, axis=1))
+            index, log_score = ivf_search(self.ivf, dg, Zc)
+            n = Q.shape[0]
+            return Decoded(index, np.zeros(n, np.int64), log_score, np.zeros(n, bool))
         rows = max(1, _BLOCK_SCORES // max(1, self.top * self.k * self.width))
         if Q.shape[0] > rows:
             parts = [self._decode_block(Q[s : s + rows], precision)
@@ -346,9 +374,9 @@ class ServingPlan:
             if stable is not None and zerr is not None:  # frames differ by Σ_j Δs_j at most
                 stable[rows] = b - second > 2.0 * self._digit_error[c].sum() * zerr[q[rows]]
 
-    def localize(self, Q: np.ndarray) -> Localization:
+    def localize(self, Q: np.ndarray, search: Search | None = None) -> Localization:
         """:meth:`decode` as the estimators' :class:`Localization`."""
-        d = self.decode(Q)
+        d = self.decode(Q, search=search)
         return Localization(d.index, np.exp(d.log_score), d.chunk, d.log_score)
 
     # -- frame scores -----------------------------------------------------------------

@@ -46,7 +46,7 @@ class SingleQueryPath:
                 beta[c, j, 0] = dg.beta
                 self.padded |= dg.n_classes < width
         self.beta = None if (beta == 1.0).all() else beta
-        self.digits = [[(dg.columns, dg.weight, dg.n_classes) for dg in phase.digits]
+        self.digits = [[(dg.columns, dg, dg.n_classes) for dg in phase.digits]
                        for phase in plan.phases]  # fmt: skip
         self.twice_digit_error = 2.0 * plan._digit_error
         self.pair_error = plan._error + plan._chunk_error
@@ -95,8 +95,11 @@ class SingleQueryPath:
         m, k = len(top), p.k
         buf = (np.zeros if self.padded else np.empty)((m, k, p.width), dtype=np.float32)
         for r, c in enumerate(top):
-            for j, (columns, weight, n_classes) in enumerate(self.digits[c]):
-                np.matmul(weight, z.take(columns), out=buf[r, j, :n_classes])
+            for j, (columns, dg, n_classes) in enumerate(self.digits[c]):
+                if dg.rowscale is None:
+                    np.matmul(dg.weight, z.take(columns), out=buf[r, j, :n_classes])
+                else:
+                    dg.products(z.take(columns)[None, :], out=buf[r, j, None, :n_classes])
         S = buf + self.bias[top]  # float32 products + float64 biases, as the batch path
         if self.beta is not None:
             S *= self.beta[top]
@@ -132,7 +135,7 @@ class SingleQueryPath:
         if p.chunk is None:
             return [0], np.zeros(1), True
         ch = p.chunk
-        s = ch.weight @ z.take(ch.columns) + ch.bias
+        s = ch.products(z.take(ch.columns)[None, :])[0] + ch.bias
         if ch.beta != 1.0:
             s *= ch.beta
         scores = s.tolist()

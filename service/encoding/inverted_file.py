@@ -1,0 +1,229 @@
+"""Coarse-to-fine search over one prototype per frame: an inverted file (IVF).
+
+A model with one class per frame (the ``robust`` preset: ``k = 1``, a period equal to the
+route) answers a query with the best-scoring of its ``N`` stored prototypes. The flat scan
+scores all of them; on a long route that is the whole cost of a query. The inverted file
+groups the prototypes into ``nlist`` lists by spherical k-means (FAISS, :class:`faiss.Kmeans`);
+a query scores the ``nlist`` centroids, then only the prototypes of its ``nprobe`` best
+lists, with the model's stored int8 weights and its own scale, bias and temperature, so a
+candidate's score is the flat scan's score of that frame. The answer is the best
+candidate (the lowest frame on ties, as the flat scan); its log-score is the log-softmax
+over the candidates, which equals the flat scan's where every list is probed and is an upper
+bound of that frame's flat log-softmax otherwise (the frames left out add to its normaliser).
+
+What is stored: the centroids (float32), the frames of every list (int32, ascending within a
+list) and the list offsets — three plain arrays in the artifact beside the weights, so
+loading rebuilds nothing and no FAISS object is serialised. The weights are not copied:
+candidates are gathered from the stored int8 rows.
+
+``search`` of an encoder: ``flat`` (the exact reference), ``ivf``, or ``auto`` (the inverted
+file from :data:`AUTO_MIN_FRAMES` frames on).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import numpy as np
+
+from service.errors import InvalidParameterError
+
+Search = Literal["flat", "ivf", "auto"]
+SEARCH_MODES: tuple[str, ...] = ("flat", "ivf", "auto")
+#: ``auto`` uses the inverted file from this many frames on (below, the flat scan costs
+#: well under a millisecond and is exact).
+AUTO_MIN_FRAMES = 65_536
+_KMEANS_POINTS = 64  # training points per centroid (a sample of a long route)
+_KMEANS_ITER = 12
+_BLOCK_ROWS = 16_384  # prototypes dequantised / assigned at a time
+
+
+def check_search(search: str) -> str:
+    if search not in SEARCH_MODES:
+        raise InvalidParameterError(f"unknown search {search!r}; choose one of {SEARCH_MODES}")
+    return search
+
+
+def uses_ivf(search: str, n_frames: int) -> bool:
+    """Whether an encoder with ``search`` over ``n_frames`` prototypes builds an inverted file."""
+    return search == "ivf" or (search == "auto" and n_frames >= AUTO_MIN_FRAMES)
+
+
+def default_nlist(n_frames: int) -> int:
+    """``≈ 4√N`` lists (``≈ √N/4`` prototypes each), at least 1 and at most ``N``."""
+    return max(1, min(n_frames, round(4.0 * math.sqrt(n_frames))))
+
+
+def default_nprobe(nlist: int) -> int:
+    """Lists scanned per query: a 1/32 of them, at least 16 (all of a short route's)."""
+    return max(1, min(nlist, max(16, -(-nlist // 32))))
+
+
+def _dequantised(weight: np.ndarray, scale: np.ndarray | None, s: int, e: int) -> np.ndarray:
+    block = np.asarray(weight[s:e], dtype=np.float32)
+    return block if scale is None else block * scale[s:e, None]
+
+
+@dataclass(frozen=True)
+class InvertedFile:
+    centroids: np.ndarray  # (nlist, m) float32, unit rows
+    members: np.ndarray  # (N,) int32 frames grouped by list, ascending within a list
+    offsets: np.ndarray  # (nlist + 1,) int64 start of every list in ``members``
+    nprobe: int
+
+    @classmethod
+    def fit(cls, weight: np.ndarray, scale: np.ndarray | None, nlist: int | None = None,
+            nprobe: int | None = None, seed: int = 0) -> InvertedFile:  # fmt: skip
+        """Lists of the rows ``weight`` (``(N, m)``, int8 with per-row ``scale`` or float):
+        spherical k-means on at most :data:`_KMEANS_POINTS` rows per list, then every row in
+        the list of its nearest centroid (inner product)."""
+        import faiss
+
+        n, m = weight.shape
+        k = default_nlist(n) if nlist is None else int(nlist)
+        if not 1 <= k <= n:
+            raise InvalidParameterError(f"nlist must lie in [1, {n}], got {nlist}")
+        rng = np.random.default_rng(seed)
+        take = np.sort(rng.choice(n, min(n, k * _KMEANS_POINTS), replace=False))
+        sample = np.asarray(weight[take], dtype=np.float32)
+        if scale is not None:
+            sample *= scale[take, None]
+        if k == 1:
+            centroids = sample.mean(axis=0, keepdims=True)
+        else:
+            km = faiss.Kmeans(m, k, niter=_KMEANS_ITER, spherical=True, seed=seed,
+                              max_points_per_centroid=_KMEANS_POINTS, min_points_per_centroid=1,
+                              verbose=False)  # fmt: skip
+            km.train(np.ascontiguousarray(sample))
+            centroids = km.centroids
+        centroids = np.ascontiguousarray(centroids, dtype=np.float32)
+        norms = np.linalg.norm(centroids, axis=1, keepdims=True)
+        centroids /= np.maximum(norms, 1e-12)
+        index = faiss.IndexFlatIP(m)
+        index.add(centroids)
+        assign = np.empty(n, dtype=np.int64)
+        for s in range(0, n, _BLOCK_ROWS):
+            e = min(n, s + _BLOCK_ROWS)
+            _, nearest = index.search(np.ascontiguousarray(_dequantised(weight, scale, s, e)), 1)
+            assign[s:e] = nearest[:, 0]
+        members = np.argsort(assign, kind="stable").astype(np.int32)
+        offsets = np.zeros(k + 1, dtype=np.int64)
+        np.cumsum(np.bincount(assign, minlength=k), out=offsets[1:])
+        probe = default_nprobe(k) if nprobe is None else int(nprobe)
+        return cls(centroids, members, offsets, max(1, min(k, probe)))
+
+    @property
+    def nlist(self) -> int:
+        return int(self.centroids.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.centroids.nbytes + self.members.nbytes + self.offsets.nbytes)
+
+    def lists(self, Z: np.ndarray, nprobe: int | None = None) -> np.ndarray:
+        """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first."""
+        p = min(self.nlist, self.nprobe if nprobe is None else int(nprobe))
+        s = Z @ self.centroids.T
+        if p >= self.nlist:
+            return np.argsort(-s, axis=1, kind="stable")
+        top = np.argpartition(-s, p - 1, axis=1)[:, :p]
+        rows = np.arange(Z.shape[0])[:, None]
+        return top[rows, np.argsort(-s[rows, top], axis=1, kind="stable")]
+
+    def candidates(self, lists: np.ndarray) -> np.ndarray:
+        """Frames of the given lists (one query's), concatenated."""
+        o = self.offsets
+        return np.concatenate([self.members[o[c] : o[c + 1]] for c in lists.tolist()])
+
+    def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        return {f"{prefix}.centroids": self.centroids, f"{prefix}.members": self.members,
+                f"{prefix}.offsets": self.offsets,
+                f"{prefix}.nprobe": np.array([self.nprobe], dtype=np.int64)}  # fmt: skip
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str,
+                    n_frames: int) -> InvertedFile | None:  # fmt: skip
+        """The stored inverted file (``None`` when the model stores none), checked against
+        the route: every frame in exactly one list."""
+        if f"{prefix}.centroids" not in arrays:
+            return None
+        out = cls(np.ascontiguousarray(arrays[f"{prefix}.centroids"], dtype=np.float32),
+                  np.asarray(arrays[f"{prefix}.members"], dtype=np.int32),
+                  np.asarray(arrays[f"{prefix}.offsets"], dtype=np.int64),
+                  int(arrays[f"{prefix}.nprobe"][0]))  # fmt: skip
+        o = out.offsets
+        if (o.shape != (out.nlist + 1,) or o[0] != 0 or o[-1] != n_frames
+                or (np.diff(o) < 0).any() or out.members.shape != (n_frames,)
+                or not 1 <= out.nprobe <= out.nlist):  # fmt: skip
+            raise ValueError(f"{prefix}: inverted file does not cover the {n_frames} frames")
+        seen = np.zeros(n_frames, dtype=bool)
+        seen[out.members] = True
+        if not seen.all():
+            raise ValueError(f"{prefix}: inverted file misses frames")
+        return out
+
+
+class Scorer(Protocol):
+    """What the search needs of a digit: its stored rows and how they score."""
+
+    weight: np.ndarray  # (N, m) int8 (with ``rowscale``) or float32
+    rowscale: np.ndarray | None
+    bias: np.ndarray  # (N,) float64
+    beta: float
+
+
+def _scores(dg: Scorer, Zc: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Float64 scores ``β·(z·w + b)`` of the frames ``ids`` for float32 rows ``Zc``, from
+    float32 products of the stored rows, as the flat scan computes them."""
+    W = dg.weight.take(ids, axis=0)
+    prod = Zc @ (W if W.dtype == np.float32 else W.astype(np.float32)).T
+    if dg.rowscale is not None:
+        prod *= dg.rowscale[ids]
+    S = prod + dg.bias[ids]
+    if dg.beta != 1.0:
+        S *= dg.beta
+    return S
+
+
+def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
+           nprobe: int | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Best frame and its log-softmax over the candidates for every float32 row of ``Zc``
+    ``(n, m)``: one query scans its lists' frames at once; a batch is scanned list by list,
+    each list's rows widened once for all the queries that probe it."""
+    n = Zc.shape[0]
+    lists = ivf.lists(Zc, nprobe)
+    if n == 1:
+        ids = ivf.candidates(lists[0])
+        S = _scores(dg, Zc, ids)[0]
+        best = float(S.max())
+        win = int(ids[S == best].min())  # the lowest frame on ties, as the flat scan
+        lse = math.log(float(np.exp(S - best).sum()))
+        return np.array([win], dtype=np.int64), np.array([-lse])
+    best = np.full(n, -np.inf)
+    arg = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    acc = np.zeros(n)  # Σ exp(S − best) over the candidates seen
+    flat = lists.ravel()
+    order = np.argsort(flat, kind="stable")
+    queries = (order // lists.shape[1]).astype(np.int64)
+    sorted_lists = flat[order]
+    cuts = np.flatnonzero(np.diff(sorted_lists)) + 1
+    o = ivf.offsets
+    for s, e in zip([0, *cuts.tolist()], [*cuts.tolist(), order.size], strict=True):
+        c = int(sorted_lists[s])
+        ids = ivf.members[o[c] : o[c + 1]]
+        if ids.size == 0:
+            continue
+        qs = queries[s:e]
+        S = _scores(dg, Zc[qs], ids)
+        top = S.argmax(axis=1)  # the first best: the lowest frame (ascending in a list)
+        bm = S[np.arange(qs.size), top]
+        old = best[qs]
+        new = np.maximum(old, bm)
+        acc[qs] = acc[qs] * np.exp(old - new) + np.exp(S - new[:, None]).sum(axis=1)
+        cand = ids[top].astype(np.int64)
+        take = (bm > old) | ((bm == old) & (cand < arg[qs]))
+        arg[qs] = np.where(take, cand, arg[qs])
+        best[qs] = new
+    return arg, -np.log(acc)

@@ -1,0 +1,224 @@
+"""The inverted file over one prototype per frame, and the int8 products of the serving plan."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.encoding import PhaseEncoder, load_model, save_model
+from service.encoding.inverted_file import InvertedFile, default_nlist, default_nprobe, search
+from service.encoding.quantization import QuantizedLinear, int8_products
+from service.encoding.serving_plan import ServingPlan, plan_for
+from service.encoding.synthetic import smooth_route
+from service.errors import ArtifactError, InvalidParameterError
+
+
+def robust(**kw: object) -> PhaseEncoder:
+    """The ``robust`` preset's shape on a small route: PCA, one int8 prototype per frame."""
+    params: dict[str, object] = dict(n_patterns=1, rho=1.0, trainer="prototype", code="residue",
+                                     n_components=24, dtype="int8", temperature=0.028)  # fmt: skip
+    params.update(kw)
+    return PhaseEncoder(**params)  # type: ignore[arg-type]
+
+
+@dataclass
+class Rows:
+    weight: np.ndarray
+    rowscale: np.ndarray | None
+    bias: np.ndarray
+    beta: float
+
+
+def brute(rows: Rows, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every frame scored: the best (lowest on ties) and its log-softmax."""
+    W = rows.weight.astype(np.float32)
+    S = (Z @ W.T) * (1.0 if rows.rowscale is None else rows.rowscale)
+    S = (S + rows.bias) * rows.beta
+    best = S.max(axis=1, keepdims=True)
+    return S.argmax(axis=1), -np.log(np.exp(S - best).sum(axis=1))
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 300), m=st.integers(1, 12), nlist=st.integers(1, 40),
+       seed=st.integers(0, 2**16), n_queries=st.integers(1, 7), ints=st.booleans())  # fmt: skip
+def test_probing_every_list_is_the_flat_scan(n: int, m: int, nlist: int, seed: int,
+                                             n_queries: int, ints: bool) -> None:  # fmt: skip
+    rng = np.random.default_rng(seed)
+    if ints:  # small integers: many exact ties, which must go to the lowest frame
+        rows = Rows(rng.integers(-3, 4, (n, m)).astype(np.int8), np.ones(n, np.float32),
+                    np.zeros(n), 1.0)  # fmt: skip
+        Z = rng.integers(-2, 3, (n_queries, m)).astype(np.float32)
+    else:
+        rows = Rows(rng.integers(-127, 128, (n, m)).astype(np.int8),
+                    rng.uniform(0.001, 0.01, n).astype(np.float32), rng.normal(0, 0.1, n), 20.0)
+        Z = rng.standard_normal((n_queries, m)).astype(np.float32)
+    k = min(n, nlist)
+    ivf = InvertedFile.fit(rows.weight, rows.rowscale, k, nprobe=k, seed=seed)
+    assert sorted(ivf.members.tolist()) == list(range(n))
+    want_index, want_score = brute(rows, Z)
+    index, score = search(ivf, rows, Z)
+    np.testing.assert_array_equal(index, want_index)
+    np.testing.assert_allclose(score, want_score, rtol=1e-5, atol=1e-5)
+    for i in range(n_queries):  # the one-query path answers as the batch path
+        one, one_score = search(ivf, rows, Z[i : i + 1])
+        assert one[0] == index[i]
+        np.testing.assert_allclose(one_score[0], score[i], rtol=1e-5, atol=1e-5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(20, 400), nprobe=st.integers(1, 6), seed=st.integers(0, 2**16))
+def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    rows = Rows(rng.integers(-127, 128, (n, 8)).astype(np.int8),
+                rng.uniform(0.001, 0.01, n).astype(np.float32), np.zeros(n), 1.0)  # fmt: skip
+    ivf = InvertedFile.fit(rows.weight, rows.rowscale, 10, nprobe=nprobe, seed=seed)
+    Z = rng.standard_normal((5, 8)).astype(np.float32)
+    index, score = search(ivf, rows, Z)
+    single = [search(ivf, rows, Z[i : i + 1]) for i in range(5)]
+    for i, lists in enumerate(ivf.lists(Z)):
+        cand = np.sort(ivf.candidates(lists))
+        sub = Rows(rows.weight[cand], rows.rowscale[cand], rows.bias[cand], 1.0)  # type: ignore[index]
+        j, s = brute(sub, Z[i : i + 1])
+        assert index[i] == cand[j[0]] == single[i][0][0]
+        np.testing.assert_allclose([score[i], single[i][1][0]], s[0], rtol=1e-5, atol=1e-5)
+        S = ((Z[i] @ rows.weight.astype(np.float32).T) * rows.rowscale).astype(np.float64)
+        flat_lp = S[index[i]] - S.max() - np.log(np.exp(S - S.max()).sum())
+        assert score[i] >= flat_lp - 1e-5  # an upper bound of the frame's flat log-softmax
+
+
+def test_the_default_lists_and_probes() -> None:
+    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 125
+    assert default_nlist(3) == 3 and default_nprobe(3) == 3
+    assert default_nprobe(100) == 16
+
+
+@pytest.mark.parametrize("n_queries", [1, 40])
+def test_ivf_probing_everything_answers_as_the_flat_scan(n_queries: int) -> None:
+    route = smooth_route(900, 48, seed=3)
+    model = robust(search="ivf", nlist=30, nprobe=30).fit(route.reference)
+    assert model.ivf_ is not None and model.ivf_.nlist == 30
+    Q = route.query[:n_queries].astype(np.float64)
+    flat, ivf = model.localize(Q, search="flat"), model.localize(Q)
+    np.testing.assert_array_equal(ivf.index, flat.index)
+    np.testing.assert_allclose(ivf.log_score, flat.log_score, rtol=1e-5, atol=1e-6)
+
+
+def test_ivf_with_few_probes_keeps_the_flat_scans_precision() -> None:
+    route = smooth_route(3000, 48, seed=4, query_noise=0.8)
+    model = robust(search="ivf").fit(route.reference)
+    assert model.ivf_ is not None and model.ivf_.nprobe < model.ivf_.nlist
+    truth = np.arange(3000)
+    flat = np.abs(model.localize(route.query, search="flat").index - truth) <= 5
+    ivf = np.abs(model.localize(route.query).index - truth) <= 5
+    assert ivf.mean() >= flat.mean() - 0.01
+
+
+def test_auto_and_flat_build_no_inverted_file_on_a_short_route() -> None:
+    route = smooth_route(200, 16, seed=1)
+    assert robust().fit(route.reference).ivf_ is None
+    assert robust(search="flat").fit(route.reference).ivf_ is None
+    multi = robust(n_patterns=2, search="ivf").fit(route.reference)  # k = 2: not a frame each
+    assert multi.ivf_ is None
+
+
+@pytest.mark.parametrize("bad", [{"search": "tree"}, {"nlist": 0}, {"nprobe": 0}])
+def test_bad_search_parameters_are_refused(bad: dict[str, object]) -> None:
+    with pytest.raises(InvalidParameterError):
+        robust(**bad).fit(smooth_route(50, 8).reference)
+
+
+def test_the_inverted_file_is_saved_and_checked_on_load(tmp_path: Path) -> None:
+    route = smooth_route(500, 24, seed=2)
+    model = robust(search="ivf", nlist=12, nprobe=3).fit(route.reference)
+    save_model(model, tmp_path / "m")
+    back = load_model(tmp_path / "m")
+    assert back.ivf_ is not None and back.ivf_.nprobe == 3  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(back.ivf_.members, model.ivf_.members)  # type: ignore[attr-defined]
+    Q = route.query.astype(np.float64)
+    np.testing.assert_array_equal(back.localize(Q).index, model.localize(Q).index)
+    assert model.footprint().components["inverted file"].actual_bytes == model.ivf_.nbytes + 8
+    arrays, meta = model._to_arrays()
+    arrays["ivf.members"] = np.zeros_like(arrays["ivf.members"])  # every frame in list 0's slot
+    with pytest.raises(ValueError, match="misses frames"):
+        PhaseEncoder._from_arrays(model.get_params(), arrays, meta)
+    del arrays["ivf.centroids"]  # no inverted file stored: the flat scan
+    assert PhaseEncoder._from_arrays(model.get_params(), arrays, meta).ivf_ is None
+
+
+def test_a_corrupt_inverted_file_is_an_artifact_error(tmp_path: Path) -> None:
+    from safetensors.numpy import load_file, save_file
+
+    from service.encoding.artifacts import TENSORS, sha256_file
+
+    model = robust(search="ivf", nlist=5).fit(smooth_route(100, 16).reference)
+    save_model(model, tmp_path / "m")
+    tensors = tmp_path / "m" / TENSORS
+    arrays = load_file(str(tensors))
+    arrays["ivf.offsets"] = arrays["ivf.offsets"][:-1].copy()
+    save_file(arrays, str(tensors))
+    manifest = tmp_path / "m" / "manifest.json"
+    import json
+
+    man = json.loads(manifest.read_text())
+    man["files"][TENSORS]["sha256"] = sha256_file(tensors)
+    manifest.write_text(json.dumps(man))
+    with pytest.raises(ArtifactError, match="inverted file"):
+        load_model(tmp_path / "m")
+
+
+def test_int8_products_are_those_of_the_float32_copy() -> None:
+    rng = np.random.default_rng(0)
+    W = rng.standard_normal((20_000, 16))
+    lin = QuantizedLinear.from_dense(W, np.zeros(20_000), "int8")
+    Z = rng.standard_normal((3, 16)).astype(np.float32)
+    copy = (lin.weight.astype(np.float64) * lin.scale[:, None]).astype(np.float32)  # type: ignore[index]
+    np.testing.assert_allclose(int8_products(Z, lin.weight, lin.scale), Z @ copy.T,  # type: ignore[arg-type]
+                               rtol=1e-5, atol=1e-5)  # fmt: skip
+
+
+def test_large_int8_weights_are_served_without_a_float32_copy(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    route = smooth_route(700, 32, seed=6)
+    model = robust(search="flat").fit(route.reference)
+    Q = route.query.astype(np.float64)
+    copied = plan_for(model)
+    monkeypatch.setattr("service.encoding.serving_plan.FLOAT32_COPY_BYTES", 0)
+    plan = ServingPlan(model)
+    digit = plan.phases[0].digits[0]
+    assert digit.weight is model.digits_[0].linear.weight and digit.rowscale is not None
+    for rows in (Q[:1], Q[1:2], Q):  # the one-query path and the batch path: certified answers
+        a, b = plan.decode(rows), copied.decode(rows)
+        np.testing.assert_array_equal(a.index, b.index)
+        np.testing.assert_allclose(a.log_score, b.log_score, rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(plan.decode(Q, "float64").index, a.index)
+
+
+@pytest.mark.parametrize("dtype", ["int8", "float32"])
+def test_one_prototype_per_frame_streamed_is_the_regular_fit(
+    dtype: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("service.encoding.prototype._STREAM_ROWS", 97)  # several blocks
+    route = smooth_route(1000, 40, seed=8)
+    X32 = route.reference.astype(np.float32)
+    steps: list[tuple[int, int]] = []
+    streamed = robust(dtype=dtype).fit(X32, progress=lambda _d, done, total: steps.append((done, total)))
+    assert steps[-1][0] == steps[-1][1] == 1000 and len(steps) > 5
+    monkeypatch.setattr(PhaseEncoder, "_one_prototype_per_row", lambda *a: False)
+    regular = robust(dtype=dtype).fit(route.reference.astype(np.float64))
+    a, b = streamed.digits_[0], regular.digits_[0]
+    np.testing.assert_array_equal(a.columns, b.columns)
+    np.testing.assert_array_equal(a.linear.weight, b.linear.weight)
+    np.testing.assert_array_equal(a.linear.bias, b.linear.bias)
+    if dtype == "int8":
+        np.testing.assert_array_equal(a.linear.scale, b.linear.scale)  # type: ignore[arg-type]
+    np.testing.assert_allclose(a.pattern.scores, b.pattern.scores, rtol=1e-6)  # type: ignore[union-attr]
+    assert a.temperature == b.temperature and streamed.n_frames_ == regular.n_frames_ == 1000
+    assert streamed.n_features_in_ == 40
+    Q = route.query.astype(np.float64)
+    np.testing.assert_array_equal(streamed.localize(Q).index, regular.localize(Q).index)
