@@ -178,8 +178,10 @@ def bench_sequence(
     run_sequence_bench(n_list, repeats, grid, nordland, params, out)
 
 
+from service.cli.bench_drive import bench_drive
 from service.cli.bench_paper import bench_paper
 from service.cli.bench_quality import bench_quality
 
 app.command("paper")(bench_paper)
 app.command("quality")(bench_quality)
+app.command("drive")(bench_drive)

@@ -1,0 +1,154 @@
+"""``gridplace bench drive``: drive protocols, every method through the same sequence filter."""
+
+from __future__ import annotations
+
+import json
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from service.cli.errors import cli_errors
+
+console = Console() if sys.stdout.isatty() else Console(width=180)  # logs keep whole rows
+
+
+def _default_out() -> Path:
+    return Path("docs/benchmarks") / f"drive-{datetime.now(UTC):%Y-%m-%d}.json"
+
+
+def _floats(text: str, option: str) -> tuple[float, ...]:
+    from service.errors import InvalidParameterError
+
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError as exc:
+        raise InvalidParameterError(f"{option}: not numbers: {text!r}") from exc
+    if any(not np.isfinite(v) or v < 0 for v in values):
+        raise InvalidParameterError(f"{option}: noise levels must be finite and >= 0")
+    return values
+
+
+def _dataset(dataset: Path | None, reference: Path | None, query: Path | None,
+             ground_truth: Path | None, synthetic: int | None, patch: int) -> Any:  # fmt: skip
+    from service.bench.data import shared_data_dir
+    from service.bench.quality_bench import descriptor_pair
+    from service.errors import InvalidInputError, InvalidParameterError
+    from service.harness.datasets import Dataset, load_dataset
+
+    given = sum(x is not None for x in (dataset, reference or query, synthetic))
+    if given > 1:
+        raise InvalidParameterError("give one of: a dataset folder, --reference/--query, --synthetic")
+    if (reference is None) != (query is None):
+        raise InvalidParameterError("--reference and --query go together")
+    if reference is not None and query is not None:
+        return descriptor_pair(reference, query, ground_truth)
+    if synthetic is not None:
+        from service.encoding.synthetic import SYNTHETIC_LABEL, smooth_route
+
+        if synthetic < 100:
+            raise InvalidParameterError("--synthetic needs at least 100 frames")
+        r = smooth_route(synthetic, 64, query_noise=1.0, seed=0)
+        return Dataset(name="synthetic", reference=r.reference, query=r.query,
+                       ground_truth=np.arange(synthetic, dtype=np.int64),
+                       label=f"{SYNTHETIC_LABEL}, N = {synthetic}, d = 64, query noise 1.0",
+                       synthetic=True, preprocessing={"mode": "none"})  # fmt: skip
+    if dataset is None:
+        root = shared_data_dir()
+        if root is None:
+            raise InvalidInputError("no dataset: give a folder, --reference/--query or "
+                                    "--synthetic N (Nordland not found in ../shared/data or "
+                                    "$GRIDPLACE_SHARED_DATA)")  # fmt: skip
+        dataset = root / "nordland-64x32"
+    return load_dataset(dataset, preprocess="auto", patch=patch)
+
+
+@cli_errors
+def bench_drive(
+    dataset: Annotated[Path | None, typer.Argument(
+        help="dataset folder: reference/ + query/ image folders and/or reference.npy + "
+             "query.npy (pixels patch-normalised); default: Nordland in the shared data")] = None,
+    reference: Annotated[Path | None, typer.Option(help="reference descriptors .npy")] = None,
+    query: Annotated[Path | None, typer.Option(help="query descriptors .npy (with --reference)")] = None,
+    ground_truth: Annotated[Path | None, typer.Option(
+        help="int .npy: query i -> reference frame (default: frame-aligned)")] = None,
+    synthetic: Annotated[int | None, typer.Option(help="a SYNTHETIC route of N frames instead")] = None,
+    methods: Annotated[str | None, typer.Option(
+        help="comma-separated: exact-nn, pq-mM, residue-rR, residue-kK-rR, or any preset "
+             "(default: exact-nn, pq-m64, robust, residue r=0.1/0.034, k=3 r=0.013, ridge, "
+             "and drive when it exists)")] = None,
+    protocols: Annotated[str, typer.Option(help="comma-separated")] = "whole,short,speed,kidnap,reverse",
+    drives: Annotated[int, typer.Option("--drives", help="short drives from random starts")] = 100,
+    short_length: Annotated[int, typer.Option(
+        "--short-length", "--short-lengths", help="frames of each short drive (L = 1 … this)")] = 200,
+    speed_drives: Annotated[int, typer.Option(help="variable-speed drives per speed profile")] = 3,
+    speed_frames: Annotated[int, typer.Option(help="query frames of a variable-speed drive, at most")] = 600,
+    kidnap_drives: Annotated[int, typer.Option(help="kidnapped drives")] = 20,
+    kidnap_before: Annotated[int, typer.Option(help="frames before the jump")] = 150,
+    kidnap_after: Annotated[int, typer.Option(help="frames after the jump")] = 250,
+    min_jump: Annotated[int, typer.Option(help="the jump is at least this many frames")] = 200,
+    odometry_noise: Annotated[str, typer.Option(
+        help="SIMULATED odometry noise levels, comma-separated ('' for none)")] = "0.05,0.1,0.2",
+    adapt: Annotated[bool, typer.Option(help="appearance adaptation of the queries")] = True,
+    filter_params: Annotated[list[str] | None, typer.Option(
+        "--filter", metavar="KEY=VALUE", help="sequence filter parameter (default: its defaults)")] = None,
+    tune: Annotated[str, typer.Option(help="off | shared | per-method: grid search on half A")] = "off",
+    grid: Annotated[list[str] | None, typer.Option(
+        "--grid", metavar="KEY=V1,V2", help="tuning grid values (emission_scale, "
+        "stop_probability, relocalization, speed_change)")] = None,
+    seed: Annotated[int, typer.Option(help="seed of every drive generator")] = 0,
+    patch: Annotated[int, typer.Option(help="patchnorm patch side for pixel datasets")] = 16,
+    out: Annotated[Path | None, typer.Option(help="JSON (default docs/benchmarks/drive-DATE.json)")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="also write the tables as Markdown")] = None,
+    figure: Annotated[Path | None, typer.Option(
+        help="PNG of drive precision and L90 against map bytes (default: beside the JSON)")] = None,
+) -> None:
+    """Localise moving vehicles: the whole drive, short drives from random starts (L90),
+    variable speed with stops, a kidnapped vehicle and a backwards drive, with and without
+    SIMULATED odometry; every method through the same filter; half A tunes, B reports."""
+    from service.bench.drive_bench import DriveSettings, run_drive_bench
+    from service.bench.drive_methods import methods as pick_methods
+    from service.bench.drive_report import markdown as to_markdown
+    from service.bench.drive_report import plot, print_report
+    from service.bench.drive_tuning import parse_grid
+    from service.cli.model_commands import sequence_config
+    from service.errors import InvalidParameterError
+
+    chosen_protocols = tuple(p.strip() for p in protocols.split(",") if p.strip())
+    try:
+        settings = DriveSettings(
+            protocols=chosen_protocols, short_drives=drives, short_length=short_length,
+            speed_drives=speed_drives, speed_frames=speed_frames, kidnap_drives=kidnap_drives,
+            kidnap_before=kidnap_before, kidnap_after=kidnap_after, min_jump=min_jump,
+            odometry_noise=_floats(odometry_noise, "--odometry-noise"), adapt=adapt, seed=seed)
+    except ValueError as exc:  # pydantic's ValidationError is a ValueError
+        raise InvalidParameterError(f"invalid drive settings: {exc}") from exc
+    from service.bench.drive_bench import PROTOCOLS
+
+    unknown = [p for p in chosen_protocols if p not in PROTOCOLS]
+    if unknown or not chosen_protocols:
+        raise InvalidParameterError(f"unknown protocol(s) {unknown}; choose from {PROTOCOLS}")
+    chosen = pick_methods(methods)
+    config = sequence_config(filter_params)
+    tuning_grid = parse_grid(grid)
+    ds = _dataset(dataset, reference, query, ground_truth, synthetic, patch)
+    out = out or _default_out()
+    with console.status("starting") as status:
+        report = run_drive_bench(ds, chosen, settings, config, tune, tuning_grid,
+                                 progress=lambda m: status.update(m),
+                                 argv=["gridplace", *sys.argv[1:]])  # fmt: skip
+    print_report(report, console)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2))
+    tmp.replace(out)
+    console.print(f"wrote {out} ({report['elapsed_seconds'] / 60:.1f} min)")
+    if markdown is not None:
+        markdown.write_text(to_markdown(report))
+        console.print(f"wrote {markdown}")
+    png = plot(report, figure or out.with_suffix(".png"))
+    console.print(f"wrote {png}" if png else "matplotlib is not installed: no figure")

@@ -1,0 +1,126 @@
+"""The drive generators and metrics of ``gridplace bench drive`` (no model involved)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.bench import drive_metrics as dm
+from service.bench import drive_protocols as dp
+from service.errors import InvalidParameterError
+
+N = 1000
+ALIGNED = np.arange(N, dtype=np.int64)
+SHIFTED = np.arange(N, dtype=np.int64) // 2 + 7  # a ground truth that is not the identity
+
+
+def _runs(x: np.ndarray) -> list[tuple[int, int]]:
+    """(value, run length) of consecutive equal entries."""
+    edges = np.flatnonzero(np.r_[True, np.diff(x) != 0, True])
+    return [(int(x[a]), int(b - a)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def test_whole_and_reverse_drives_follow_the_ground_truth() -> None:
+    (w,) = dp.whole(100, 400, SHIFTED)
+    assert np.array_equal(w.rows, np.arange(100, 400))
+    assert np.array_equal(w.truth, SHIFTED[100:400])
+    (r,) = dp.reverse(100, 400, ALIGNED)
+    assert np.array_equal(r.rows, np.arange(399, 99, -1))
+    assert np.array_equal(r.truth, r.rows)
+    assert r.motion[0] == 0 and np.all(r.motion[1:] == -1)
+
+
+def test_short_drives_start_at_random_inside_the_part_and_are_seeded() -> None:
+    ds = dp.short(500, 1000, ALIGNED, count=50, length=40, seed=3)
+    assert len(ds) == 50 and all(len(d) == 40 for d in ds)
+    assert all(d.rows[0] >= 500 and d.rows[-1] < 1000 for d in ds)
+    assert all(np.array_equal(np.diff(d.rows), np.ones(39)) for d in ds)
+    assert len({int(d.rows[0]) for d in ds}) > 10
+    again = dp.short(500, 1000, ALIGNED, count=50, length=40, seed=3)
+    assert all(np.array_equal(a.rows, b.rows) for a, b in zip(ds, again, strict=True))
+    with pytest.raises(InvalidParameterError):
+        dp.short(0, 30, ALIGNED, count=1, length=40, seed=0)
+
+
+def test_a_kidnap_jumps_far_and_the_wheels_do_not_see_it() -> None:
+    for d in dp.kidnap(0, N, ALIGNED, count=30, before=100, after=150, min_jump=200, seed=1):
+        assert len(d) == 250 and d.event == 100
+        assert np.all(np.diff(d.rows[:100]) == 1) and np.all(np.diff(d.rows[100:]) == 1)
+        assert abs(int(d.truth[100]) - int(d.truth[99])) >= 200
+        assert np.all(d.motion[1:] == 1)  # odometry reports its usual step across the jump
+        assert d.rows.min() >= 0 and d.rows.max() < N
+
+
+@pytest.mark.parametrize("profile", list(dp.SPEED_PROFILES))
+def test_speed_profiles_stay_in_the_speed_range(profile: str) -> None:
+    v = dp.SPEED_PROFILES[profile](np.random.default_rng(0), 2000)
+    assert v.shape == (2000,)
+    assert v.min() >= dp.MIN_SPEED - 1e-9 and v.max() <= dp.MAX_SPEED + 1e-9
+    assert np.ptp(v) > 0.5  # the speed really varies
+
+
+def test_stops_repeat_one_frame_for_5_to_20_frames() -> None:
+    rng = np.random.default_rng(4)
+    v = dp.with_stops(np.full(3000, 1.0), rng)
+    zero_runs = [n for val, n in _runs((v == 0).astype(np.int64)) if val == 1]
+    assert len(zero_runs) >= 10
+    assert all(dp.STOP_FRAMES[0] <= n <= dp.STOP_FRAMES[1] for n in zero_runs)
+    rows = dp.positions(0, v, 10_000)
+    repeats = [n for _, n in _runs(rows) if n > 1]
+    # at speed 1 a frame repeats only at a stop: the frame before it and the stopped ones
+    assert sorted(repeats) == sorted(n + 1 for n in zero_runs)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), lo=st.integers(0, 300))
+def test_variable_speed_drives_resample_the_route(seed: int, lo: int) -> None:
+    hi = lo + 600
+    for d in dp.speed(lo, hi, SHIFTED, count=2, frames=400, seed=seed):
+        assert 1 <= len(d) <= 400
+        assert d.rows.min() >= lo and d.rows.max() < hi
+        steps = np.diff(d.rows)
+        assert steps.min() >= 0 and steps.max() <= 3  # forward, at most 2 frames a step (+ rounding)
+        assert np.array_equal(d.truth, SHIFTED[d.rows])  # truth of a resampled drive
+        assert np.array_equal(d.motion[1:], np.diff(d.truth))
+        assert (steps == 0).any()  # it stops
+
+
+def test_noisy_odometry_is_exact_at_zero_and_noisy_as_stated() -> None:
+    motion = np.full(20_000, 1.0)
+    assert np.array_equal(dp.noisy_odometry(motion, 0.0, 1), motion)
+    odo = dp.noisy_odometry(motion, 0.1, 1)
+    # d(1 + s e1) + s e2 with d = 1: standard deviation s·√2
+    assert abs(odo.mean() - 1.0) < 0.01 and abs(odo.std() - 0.1 * np.sqrt(2)) < 0.01
+    assert np.array_equal(odo, dp.noisy_odometry(motion, 0.1, 1))
+
+
+# -- metrics -----------------------------------------------------------------------------------
+def test_precision_after_and_l90_on_hand_made_tracks() -> None:
+    truth = np.arange(10)
+    right = truth.copy()
+    late = np.where(truth < 4, 100, truth)  # wrong for the first 4 frames
+    never = np.full(10, 100)
+    curve = dm.precision_after([right] * 8 + [late, never], [truth] * 10)
+    assert np.allclose(curve[:4], 0.8) and np.allclose(curve[4:], 0.9)
+    assert dm.first_reaching(curve) == 5
+    assert dm.first_reaching(curve, 0.95) is None
+    assert dm.precision([right, never], [truth, truth]) == 0.5
+
+
+def test_kidnap_recovery_counts_frames_until_the_track_stays_right() -> None:
+    truth = np.arange(100)
+    pred = truth.copy()
+    pred[50:60] = 0  # lost for 10 frames after the jump at 50
+    pred[65] = 0  # one more slip: not yet staying right
+    assert dm.recovery(pred, truth, 50, hold=20) == 16
+    assert dm.recovery(pred, truth, 50, hold=5) == 10
+    assert dm.recovery(truth, truth, 50) == 0
+    assert dm.recovery(np.zeros(100, np.int64), truth, 50) is None
+    late = truth.copy()
+    late[50:95] = 0
+    assert dm.recovery(late, truth, 50, hold=20) == 45  # right to the end counts
+    s = dm.recovery_summary([0, 10, 20, None])
+    assert s["median"] == 10 and s["never"] == 0.25 and s["drives"] == 4
+    assert s["p90"] == pytest.approx(18.0)
