@@ -34,7 +34,8 @@ def _floats(text: str, option: str) -> tuple[float, ...]:
 
 
 def _dataset(dataset: Path | None, reference: Path | None, query: Path | None,
-             ground_truth: Path | None, synthetic: int | None, patch: int) -> Any:  # fmt: skip
+             ground_truth: Path | None, synthetic: int | None, patch: int,
+             name: str | None = None) -> Any:  # fmt: skip
     from service.bench.data import shared_data_dir
     from service.bench.quality_bench import descriptor_pair
     from service.errors import InvalidInputError, InvalidParameterError
@@ -46,7 +47,7 @@ def _dataset(dataset: Path | None, reference: Path | None, query: Path | None,
     if (reference is None) != (query is None):
         raise InvalidParameterError("--reference and --query go together")
     if reference is not None and query is not None:
-        return descriptor_pair(reference, query, ground_truth)
+        return descriptor_pair(reference, query, ground_truth, name)
     if synthetic is not None:
         from service.encoding.synthetic import SYNTHETIC_LABEL, smooth_route
 
@@ -76,6 +77,8 @@ def bench_drive(
     query: Annotated[Path | None, typer.Option(help="query descriptors .npy (with --reference)")] = None,
     ground_truth: Annotated[Path | None, typer.Option(
         help="int .npy: query i -> reference frame (default: frame-aligned)")] = None,
+    name: Annotated[str | None, typer.Option(
+        help="name of a --reference/--query pair in the output (default: its folder's)")] = None,
     synthetic: Annotated[int | None, typer.Option(help="a SYNTHETIC route of N frames instead")] = None,
     methods: Annotated[str | None, typer.Option(
         help="comma-separated: exact-nn, pq-mM, residue-rR, residue-kK-rR, or any preset "
@@ -135,7 +138,7 @@ def bench_drive(
     chosen = pick_methods(methods)
     config = sequence_config(filter_params)
     tuning_grid = parse_grid(grid)
-    ds = _dataset(dataset, reference, query, ground_truth, synthetic, patch)
+    ds = _dataset(dataset, reference, query, ground_truth, synthetic, patch, name)
     out = out or _default_out()
     with console.status("starting") as status:
         report = run_drive_bench(ds, chosen, settings, config, tune, tuning_grid,
