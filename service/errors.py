@@ -126,6 +126,13 @@ class DimensionChangeError(ConflictError):
     code = "dimension_change"
 
 
+class RetrainRequiredError(ConflictError):
+    """An append or extension cannot keep the map's existing labels (its code's periods do not
+    tell the extended route's places apart): the map needs a full retrain."""
+
+    code = "retrain_required"
+
+
 class PayloadTooLargeError(InvalidInputError):
     code = "payload_too_large"
     http_status = 413

@@ -178,6 +178,20 @@ def bench_sequence(
     run_sequence_bench(n_list, repeats, grid, nordland, params, out)
 
 
+@app.command("append")
+def bench_append(
+    ref: Annotated[Path, typer.Option(help="summer descriptors (.npy), frame-aligned with --qry")],
+    qry: Annotated[Path, typer.Option(help="winter descriptors (.npy)")],
+    half: Annotated[int, typer.Option(help="first frame of the test half; frames before it are appended")] = 1788,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-append.json"),
+) -> None:
+    """Append winter half A to a summer map (partial_fit) against training on both from
+    scratch: time and precision on winter half B, beside the unappended map."""
+    from service.bench.append_bench import run_append_bench
+
+    run_append_bench(ref, qry, out, half)
+
+
 from service.cli.bench_drive import bench_drive
 from service.cli.bench_paper import bench_paper
 from service.cli.bench_quality import bench_quality

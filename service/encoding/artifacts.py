@@ -7,6 +7,10 @@ everything is written into a temporary sibling directory, fsynced, and renamed i
 so a reader sees either no artifact or a complete one; an existing artifact is never
 overwritten. Loading verifies the checksums and the schema before any tensor is used.
 No pickle is involved anywhere.
+
+A model that can take appended traversals (:mod:`service.encoding.appending`) also stores its
+append state, per-class counts and masses, in ``append_state.safetensors``: checksummed like
+the tensors, outside the footprint (queries never read it).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from service.errors import ArtifactError, ConflictError, InvalidInputError
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
 TENSORS = "tensors.safetensors"
+APPEND_STATE = "append_state.safetensors"
 
 
 def _model_classes() -> dict[str, type[PlaceRecognizer]]:
@@ -146,6 +151,15 @@ def save_model(
             TENSORS: {"sha256": sha256_file(tensors), "bytes": tensors.stat().st_size}
         }
         manifest["artifact_bytes"] = tensors.stat().st_size
+        state_fn = getattr(model, "_state_arrays", None)
+        state = state_fn() if state_fn is not None else {}
+        if state:
+            path_state = tmp / APPEND_STATE
+            save_file({k: np.ascontiguousarray(v) for k, v in state.items()}, str(path_state))
+            _fsync_file(path_state)
+            manifest["files"][APPEND_STATE] = {
+                "sha256": sha256_file(path_state), "bytes": path_state.stat().st_size,
+            }  # fmt: skip
         man = tmp / MANIFEST
         man.write_text(json.dumps(manifest, indent=2, sort_keys=True))
         _fsync_file(man)
@@ -195,6 +209,8 @@ def load_model(path: str | os.PathLike[str]) -> PlaceRecognizer:
         raise ArtifactError(f"artifact {path}: unknown model kind {manifest.get('kind')!r}")
     try:
         arrays = load_file(str(root / TENSORS))
+        if APPEND_STATE in files:
+            arrays.update(load_file(str(root / APPEND_STATE)))
         return cls._from_arrays(manifest["params"], arrays, manifest["meta"])
     except (SafetensorError, KeyError, TypeError, ValueError) as exc:
         raise ArtifactError(f"artifact {path} is inconsistent: {exc}") from exc

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from service.encoding import appending
 from service.encoding.base import Localization, PlaceRecognizer
 from service.encoding.decoding import DECODE_MODES, decode
 from service.encoding.digit_classifier import DigitClassifier
@@ -192,6 +193,8 @@ class PhaseEncoder(PlaceRecognizer):
         steps.done(0)
         pattern = select_columns(scores, float(self.rho), self.gamma)
         self.digits_ = [DigitClassifier(pattern.columns, linear, pattern, self._temperature())]
+        self.tallies_ = [appending.streamed_tally(X, front)]
+        self.whitening_ = None
         self._set_fitted(n, int(linear.weight.shape[1]), 1)
 
     def _fit_inverted_file(self) -> InvertedFile | None:
@@ -264,8 +267,25 @@ class PhaseEncoder(PlaceRecognizer):
                 temperature=self._temperature(),
             ))  # fmt: skip
             steps.done(j)
+        self.tallies_ = appending.tallies_of(self, Xn, labels)
+        self.whitening_: appending.ConditionWhitening | None = None
         self.normalizer_ = None  # fit() sets the front-end; a chunk's encoder has none
         self._set_fitted(n, d, n_traversals)
+        return self
+
+    def partial_fit(
+        self, X: Any, y: Any = None, *, places: Any = None, extend: bool = False,
+        whiten: bool | None = None,
+    ) -> PhaseEncoder:  # fmt: skip
+        """Append one traversal (an array) or several (a list, with a place index each) to
+        the fitted model, in time proportional to the new rows: class means updated, the
+        column statistics and PCA axes kept (:mod:`service.encoding.appending`). ``places``:
+        each row's place (``None``: row ``i`` is place ``i``); ``extend``: places beyond the
+        route extend it; ``whiten``: learn the new rows' within-place scatter (default: where
+        the model has one class per place)."""
+        del y
+        self._check_fitted()
+        appending.append(self, X, places, extend, whiten)
         return self
 
     @property
@@ -369,8 +389,16 @@ class PhaseEncoder(PlaceRecognizer):
             for j in range(len(model.periods_))
         ]
         model.ivf_ = InvertedFile.from_arrays(arrays, f"{prefix}ivf", n)
+        tallies = [appending.ClassTally.from_arrays(arrays, f"{prefix}enc.{j}")
+                   for j in range(len(model.periods_))]  # fmt: skip
+        model.tallies_ = tallies if all(t is not None for t in tallies) else None
+        model.whitening_ = appending.ConditionWhitening.from_arrays(arrays, f"{prefix}whiten")
         model._set_fitted(n, d, int(meta.get("n_traversals", 1)))
         return model
+
+    def _state_arrays(self) -> dict[str, np.ndarray]:
+        """The append state (per-class counts and masses), stored beside the tensors."""
+        return appending.state_arrays(self)
 
 
 def _labels(code: str, places: np.ndarray, periods: tuple[int, ...]) -> np.ndarray:
