@@ -34,7 +34,8 @@ PROTOCOLS: tuple[str, ...] = ("whole", "short", "speed", "kidnap", "reverse")
 REPORTED_SPLITS: tuple[str, ...] = ("B", "all")
 ODOMETRY_MODEL = ("SIMULATED odometry from the ground-truth displacement d per frame: "
                   "d·(1 + s·e1) + s·e2, e1, e2 standard normal, s = the noise level "
-                  "(multiplicative and additive, the additive part in reference frames)")  # fmt: skip
+                  "(multiplicative and additive, the additive part in reference frames); the "
+                  "filter is told odometry_noise = s, odometry_floor = max(s, its own)")  # fmt: skip
 _SCORE_BLOCK = 256
 Progress = Callable[[str], None]
 
@@ -87,6 +88,19 @@ def odometry_supported() -> bool:
     return "odometry" in inspect.signature(filter_sequence).parameters
 
 
+def stated(config: SequenceConfig, level: float) -> SequenceConfig:
+    """``config`` with the odometry noise the vehicle states (the simulated ``level``, as a
+    fraction of the displacement and, at least the configured floor, in frames), where this
+    build's filter has those parameters."""
+    fields = type(config).model_fields
+    update: dict[str, float] = {}
+    if "odometry_noise" in fields:
+        update["odometry_noise"] = level
+    if "odometry_floor" in fields:
+        update["odometry_floor"] = max(level, float(getattr(config, "odometry_floor")))
+    return SequenceConfig.parse(**{**config.model_dump(), **update}) if update else config
+
+
 def track(scores: np.ndarray, drive: dp.Drive, config: SequenceConfig,
           odometry: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """The filtered estimates of one drive (its rows cut from the method's frame scores)."""
@@ -101,6 +115,8 @@ def evaluate(scores: np.ndarray, drives: dict[str, list[dp.Drive]], config: Sequ
     """Every protocol's figures for one filter configuration; ``level``: odometry noise
     (``None``: no odometry)."""
     out: dict[str, Any] = {}
+    if level is not None:
+        config = stated(config, level)
     for p, ds in drives.items():
         odo = [None if level is None else dp.noisy_odometry(d.motion, level, [seed, k, int(1e6 * level)])
                for k, d in enumerate(ds)]  # fmt: skip

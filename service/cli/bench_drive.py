@@ -6,7 +6,7 @@ import json
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -33,41 +33,6 @@ def _floats(text: str, option: str) -> tuple[float, ...]:
     return values
 
 
-def _dataset(dataset: Path | None, reference: Path | None, query: Path | None,
-             ground_truth: Path | None, synthetic: int | None, patch: int,
-             name: str | None = None) -> Any:  # fmt: skip
-    from service.bench.data import shared_data_dir
-    from service.bench.quality_bench import descriptor_pair
-    from service.errors import InvalidInputError, InvalidParameterError
-    from service.harness.datasets import Dataset, load_dataset
-
-    given = sum(x is not None for x in (dataset, reference or query, synthetic))
-    if given > 1:
-        raise InvalidParameterError("give one of: a dataset folder, --reference/--query, --synthetic")
-    if (reference is None) != (query is None):
-        raise InvalidParameterError("--reference and --query go together")
-    if reference is not None and query is not None:
-        return descriptor_pair(reference, query, ground_truth, name)
-    if synthetic is not None:
-        from service.encoding.synthetic import SYNTHETIC_LABEL, smooth_route
-
-        if synthetic < 100:
-            raise InvalidParameterError("--synthetic needs at least 100 frames")
-        r = smooth_route(synthetic, 64, query_noise=1.0, seed=0)
-        return Dataset(name="synthetic", reference=r.reference, query=r.query,
-                       ground_truth=np.arange(synthetic, dtype=np.int64),
-                       label=f"{SYNTHETIC_LABEL}, N = {synthetic}, d = 64, query noise 1.0",
-                       synthetic=True, preprocessing={"mode": "none"})  # fmt: skip
-    if dataset is None:
-        root = shared_data_dir()
-        if root is None:
-            raise InvalidInputError("no dataset: give a folder, --reference/--query or "
-                                    "--synthetic N (Nordland not found in ../shared/data or "
-                                    "$GRIDPLACE_SHARED_DATA)")  # fmt: skip
-        dataset = root / "nordland-64x32"
-    return load_dataset(dataset, preprocess="auto", patch=patch)
-
-
 @cli_errors
 def bench_drive(
     dataset: Annotated[Path | None, typer.Argument(
@@ -80,6 +45,9 @@ def bench_drive(
     name: Annotated[str | None, typer.Option(
         help="name of a --reference/--query pair in the output (default: its folder's)")] = None,
     synthetic: Annotated[int | None, typer.Option(help="a SYNTHETIC route of N frames instead")] = None,
+    extractor: Annotated[str | None, typer.Option(
+        help="run the folder's reference/ and query/ images through this image extractor "
+             "(patchnorm | hog | cnn, as `gridplace extract`; written beside --out)")] = None,
     methods: Annotated[str | None, typer.Option(
         help="comma-separated: exact-nn, pq-mM, residue-rR, residue-kK-rR, or any preset "
              "(default: exact-nn, pq-m64, robust, residue r=0.1/0.034, k=3 r=0.013, ridge, "
@@ -114,6 +82,7 @@ def bench_drive(
     variable speed with stops, a kidnapped vehicle and a backwards drive, with and without
     SIMULATED odometry; every method through the same filter; half A tunes, B reports."""
     from service.bench.drive_bench import DriveSettings, run_drive_bench
+    from service.bench.drive_data import load_route
     from service.bench.drive_methods import methods as pick_methods
     from service.bench.drive_report import markdown as to_markdown
     from service.bench.drive_report import plot, print_report
@@ -138,8 +107,9 @@ def bench_drive(
     chosen = pick_methods(methods)
     config = sequence_config(filter_params)
     tuning_grid = parse_grid(grid)
-    ds = _dataset(dataset, reference, query, ground_truth, synthetic, patch, name)
     out = out or _default_out()
+    ds = load_route(dataset, reference, query, ground_truth, synthetic, patch, name, extractor,
+                    out.parent / "extracted")  # fmt: skip
     with console.status("starting") as status:
         report = run_drive_bench(ds, chosen, settings, config, tune, tuning_grid,
                                  progress=lambda m: status.update(m),

@@ -108,3 +108,25 @@ def test_odometry_reaches_the_filter_when_it_takes_some(monkeypatch: pytest.Monk
     assert "speed" in got["B"]["odometry_0.1"] and len(seen) == 8  # 2 splits × (1 whole + 3 speed)
     whole_b = drives["B"]["whole"][0]
     assert any(o.size == len(whole_b) and abs(o.mean() - 1.0) < 0.05 for o in seen)
+
+
+def test_a_folder_of_images_goes_through_an_image_extractor(tmp_path: Path) -> None:
+    from PIL import Image
+
+    from service.encoding.synthetic import smooth_route
+
+    route = smooth_route(120, 32 * 64, smoothness=3.0, query_noise=0.3, seed=1)  # SYNTHETIC
+    for side, rows in (("reference", route.reference), ("query", route.query)):
+        (tmp_path / "imgs" / side).mkdir(parents=True)
+        pixels = np.clip(128 + 40 * rows, 0, 255).astype(np.uint8).reshape(-1, 32, 64)
+        for i, img in enumerate(pixels):
+            Image.fromarray(img).save(tmp_path / "imgs" / side / f"{i:04d}.png")
+    out = tmp_path / "res" / "drive.json"
+    code, _, stderr = invoke(tmp_path / "imgs", "--extractor", "patchnorm", "--methods",
+                             "exact-nn", "--protocols", "whole,short", "--drives", "5",
+                             "--short-length", "20", "--odometry-noise", "", "--out", out)  # fmt: skip
+    assert code == 0, stderr
+    r = json.loads(out.read_text())
+    assert r["data"]["name"] == "imgs-patchnorm" and r["n_frames"] == 120
+    assert (tmp_path / "res" / "extracted" / "imgs-patchnorm-query.npy").is_file()
+    assert r["methods"]["exact-nn"]["results"]["default"]["all"]["none"]["whole"]["precision"] > 0.5
