@@ -101,30 +101,58 @@ def bench_grpc(
 
 @app.command("scale")
 def bench_scale(
-    sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
+    sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "100000,1000000",
     n_features: Annotated[int, typer.Option("--d", help="descriptor size d")] = 512,
-    frames_per_chunk: Annotated[int, typer.Option(help="frames per chunk (n_chunks = N / this)")] = 10_000,
+    frames_per_chunk: Annotated[int, typer.Option(
+        help="paper presets: frames per chunk (n_chunks = N / this)")] = 10_000,
     region_length: Annotated[int, typer.Option(help="frames per regional scenery change")] = 2000,
     query_noise: Annotated[float, typer.Option(help="noise of the SYNTHETIC queries")] = 0.3,
     queries: Annotated[int, typer.Option(help="noisy queries of random frames")] = 2000,
     single: Annotated[int, typer.Option(help="single-query repetitions")] = 400,
     batch: Annotated[int, typer.Option(help="queries per batch call")] = 2000,
     exact_frames: Annotated[int, typer.Option(help="frames exact NN is measured on")] = 100_000,
-    trainer: Annotated[str, typer.Option()] = "ridge",
+    trainer: Annotated[str, typer.Option(help="paper presets: the trainer")] = "ridge",
     preset: Annotated[str, typer.Option(
-        help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
-             "code with the ridge trainer)")] = "ridge",
+        help="encoder preset: robust (the default, with its inverted file, beside FAISS IVF-SQ8 "
+             "and HNSW) or residue; paper or ridge: the chunked mixed-radix code")] = "robust",
+    hnsw_max: Annotated[int, typer.Option(help="largest N FAISS HNSW is built for")] = 200_000,
+    sweep_noise: Annotated[str, typer.Option(
+        help="default preset: query noises of the nprobe sweep, comma-separated")] = "0.3,4.0",
     work_dir: Annotated[Path | None, typer.Option(help="where the route files go (temporary)")] = None,
-    figure: Annotated[Path | None, typer.Option(help="PNG of query time against N")] = Path("query-time.png"),
+    figure: Annotated[Path | None, typer.Option(help="PNG of query time (and bytes) against N")] = Path("query-time.png"),
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale.json"),
 ) -> None:
     """Train and serve SYNTHETIC maps up to 1M frames: time, peak RSS, artifact, load, latency,
-    precision, beside the reference decoder and exact NN."""
-    from service.bench.scale_bench import run_scale_bench
+    precision, beside exact NN (and for the default preset its flat scan and FAISS)."""
+    if preset in ("paper", "ridge"):
+        from service.bench.scale_bench import run_scale_bench
 
-    run_scale_bench([int(s) for s in sizes.split(",")], n_features, frames_per_chunk, region_length,
-                    query_noise, queries, single, batch, exact_frames, trainer, out, work_dir,
-                    figure, preset=preset)  # fmt: skip
+        run_scale_bench([int(s) for s in sizes.split(",")], n_features, frames_per_chunk,
+                        region_length, query_noise, queries, single, batch, exact_frames, trainer,
+                        out, work_dir, figure, preset=preset)  # fmt: skip
+        return
+    from service.bench.scale_default import run_default_scale_bench
+
+    run_default_scale_bench([int(s) for s in sizes.split(",")], n_features, region_length,
+                            query_noise, queries, single, batch, exact_frames, out, preset,
+                            work_dir, hnsw_max, figure,
+                            sweep_noises=tuple(float(v) for v in sweep_noise.split(",") if v))  # fmt: skip
+
+
+@app.command("scale-real")
+def bench_scale_real(
+    reference: Annotated[Path, typer.Option(help="reference descriptors (.npy, N × d)")],
+    query: Annotated[Path, typer.Option(help="query descriptors (.npy), query i ↔ frame i")],
+    preset: Annotated[str, typer.Option(help="encoder preset (one class per frame)")] = "robust",
+    single: Annotated[int, typer.Option(help="single-query repetitions")] = 200,
+    label: Annotated[str, typer.Option(help="what the descriptors are, for the report")] = "",
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale-real.json"),
+) -> None:
+    """The default preset's inverted file on real descriptors: precision against its flat scan
+    at the default nprobe and at larger shares of the lists."""
+    from service.bench.scale_real import run_scale_real_bench
+
+    run_scale_real_bench(reference, query, out, preset, single, label)
 
 
 @app.command("growth")

@@ -85,6 +85,11 @@ class ModelParams(BaseModel):
         "most 0.7 of the training rows, and the model within N·d bytes (exact NN on uint8 "
         "rows); false: n_components as given",
     )
+    search: Literal["flat", "ivf", "auto"] = Field(
+        "auto", description="how a route with one class per frame (the default preset) is "
+        "searched: flat scans every frame (exact), ivf through an inverted file of its "
+        "prototypes, auto the inverted file from 65,536 frames on (unchunked routes)",
+    )
     n_chunks: int = Field(1, ge=1, le=100_000, description="1 = no chunking")
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int = Field(2, ge=1, le=100_000)
@@ -143,7 +148,7 @@ def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
         auto_width=params.auto_width,
     )
     if params.n_chunks == 1:
-        return PhaseEncoder(**common, n_jobs=params.n_jobs)
+        return PhaseEncoder(**common, n_jobs=params.n_jobs, search=params.search)
     return ChunkedPlaceEncoder(
         n_chunks=params.n_chunks,
         chunk_rho=params.chunk_rho,

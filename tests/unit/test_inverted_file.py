@@ -222,3 +222,12 @@ def test_one_prototype_per_frame_streamed_is_the_regular_fit(
     assert streamed.n_features_in_ == 40
     Q = route.query.astype(np.float64)
     np.testing.assert_array_equal(streamed.localize(Q).index, regular.localize(Q).index)
+
+
+def test_training_parameters_name_the_search() -> None:
+    from service.encoding import ModelParams, build_model
+
+    assert build_model(ModelParams.parse()).search == "auto"  # type: ignore[union-attr]
+    assert build_model(ModelParams.parse(search="ivf")).search == "ivf"  # type: ignore[union-attr]
+    with pytest.raises(InvalidParameterError, match="search"):
+        ModelParams.parse(search="tree")
