@@ -9,7 +9,8 @@ from rich.console import Console
 from rich.table import Table
 
 SHORT_AT = (10, 50)  # precision of short drives after this many frames, in the tables
-COLUMNS = ("method", "map bytes", "single", "whole", "L90", "short@10", "short@50",
+FIXED_PARTS = ("projection", "normalization", "masks")  # parts that do not grow with the route
+COLUMNS = ("method", "map bytes", "code bytes", "single", "whole", "L90", "short@10", "short@50",
            "speed+stops", "kidnap: median (p90), never", "reverse (reverse filter)")  # fmt: skip
 
 
@@ -18,6 +19,13 @@ def _bytes(n: float) -> str:
         if n >= size:
             return f"{n / size:.2f} {unit}"
     return f"{n:.0f} B"
+
+
+def code_bytes(method: dict[str, Any]) -> int:
+    """A method's bytes beyond its fixed parts (projection, column statistics, masks): the
+    part that grows with the route."""
+    return int(method["bytes"] - sum(v for k, v in method["components"].items()
+                                     if k in FIXED_PARTS))  # fmt: skip
 
 
 def _pct(p: float | None) -> str:
@@ -61,7 +69,7 @@ def rows(report: dict[str, Any], config: str, split: str) -> list[tuple[list[str
         curve = short["curve"] if short else []
         rev = f.get("reverse")
         cells = [
-            name, _bytes(m["bytes"]), _pct(m["single"][split]),
+            name, _bytes(m["bytes"]), _bytes(code_bytes(m)), _pct(m["single"][split]),
             _pct(f["whole"]["precision"]) if "whole" in f else "–", _l90(short),
             *(_pct(curve[at - 1]) if len(curve) >= at else "–" for at in SHORT_AT),
             _pct(f["speed"]["precision"]) if "speed" in f else "–", _kidnap(f.get("kidnap")),
@@ -83,7 +91,8 @@ def notes(report: dict[str, Any]) -> str:
     ad = report["adaptation"]
     odo = report["odometry"]
     return (
-        f"Adaptation: {'on, ' + ad['order'] if ad['applied'] else 'off'}. "
+        f"Adaptation: {'on, ' + ad['order'] if ad['applied'] else 'off'}. Code bytes: the map's "
+        f"bytes beyond its fixed parts ({', '.join(FIXED_PARTS)}). "
         f"L90: first L with ≥ {100 * report['l90_target']:.0f} % of {report['settings']['short_drives']} "
         f"short drives within ±{report['tolerance']} after L frames. Kidnap: frames after the jump "
         f"until within ±{report['tolerance']} for {report['recovery_hold']} frames, median (p90) of "

@@ -6,7 +6,7 @@ import json
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -77,6 +77,9 @@ def bench_drive(
     markdown: Annotated[Path | None, typer.Option(help="also write the tables as Markdown")] = None,
     figure: Annotated[Path | None, typer.Option(
         help="PNG of drive precision and L90 against map bytes (default: beside the JSON)")] = None,
+    report_from: Annotated[Path | None, typer.Option(
+        "--report", help="run nothing: print this JSON report's tables (and --markdown, "
+                         "--figure)")] = None,
 ) -> None:
     """Localise moving vehicles: the whole drive, short drives from random starts (L90),
     variable speed with stops, a kidnapped vehicle and a backwards drive, with and without
@@ -84,12 +87,21 @@ def bench_drive(
     from service.bench.drive_bench import DriveSettings, run_drive_bench
     from service.bench.drive_data import load_route
     from service.bench.drive_methods import methods as pick_methods
-    from service.bench.drive_report import markdown as to_markdown
-    from service.bench.drive_report import plot, print_report
     from service.bench.drive_tuning import parse_grid
     from service.cli.model_commands import sequence_config
     from service.errors import InvalidParameterError
 
+    if report_from is not None:
+        from service.errors import InvalidInputError
+
+        try:
+            report = json.loads(report_from.read_text())
+        except (OSError, ValueError) as exc:
+            raise InvalidInputError(f"cannot read the report {report_from}: {exc}") from exc
+        if report.get("benchmark") != "drive":
+            raise InvalidInputError(f"{report_from} is not a `gridplace bench drive` report")
+        _outputs(report, markdown, figure or report_from.with_suffix(".png"))
+        return
     chosen_protocols = tuple(p.strip() for p in protocols.split(",") if p.strip())
     try:
         settings = DriveSettings(
@@ -114,14 +126,23 @@ def bench_drive(
         report = run_drive_bench(ds, chosen, settings, config, tune, tuning_grid,
                                  progress=lambda m: status.update(m),
                                  argv=["gridplace", *sys.argv[1:]])  # fmt: skip
-    print_report(report, console)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text(json.dumps(report, indent=2))
     tmp.replace(out)
+    _outputs(report, markdown, figure or out.with_suffix(".png"))
     console.print(f"wrote {out} ({report['elapsed_seconds'] / 60:.1f} min)")
+
+
+def _outputs(report: dict[str, Any], markdown: Path | None, figure: Path) -> None:
+    """The tables on the console, the Markdown file and the figure of one report."""
+    from service.bench.drive_report import markdown as to_markdown
+    from service.bench.drive_report import plot, print_report
+
+    print_report(report, console)
     if markdown is not None:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(to_markdown(report))
         console.print(f"wrote {markdown}")
-    png = plot(report, figure or out.with_suffix(".png"))
+    png = plot(report, figure)
     console.print(f"wrote {png}" if png else "matplotlib is not installed: no figure")

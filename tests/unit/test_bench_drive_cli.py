@@ -61,6 +61,12 @@ def test_the_bench_drives_every_method_through_the_filter(tmp_path: Path) -> Non
     assert "tuned on A for exact-nn" in stdout and "L90" in stdout
     assert "| `robust` |" in md.read_text()
     assert out.with_suffix(".png").stat().st_size > 1000
+    # the tables again from the JSON, without running anything
+    again = tmp_path / "again.md"
+    code, stdout, stderr = invoke("--report", out, "--markdown", again, "--figure",
+                                  tmp_path / "again.png")  # fmt: skip
+    assert code == 0, stderr
+    assert again.read_text() == md.read_text() and "code bytes" in stdout
 
 
 @pytest.mark.parametrize(("args", "needle"), [
