@@ -208,6 +208,7 @@ def run_drive_bench(ds: Dataset, chosen: list[DriveMethod], settings: DriveSetti
     if tune not in TUNE_MODES:
         raise InvalidParameterError(f"--tune must be one of {', '.join(TUNE_MODES)}")
     start = time.perf_counter()
+    context = run_context(argv)  # the code and command as they were when the run started
     n = ds.query.shape[0]
     drives = {name: make_drives(lo, hi, ds.ground_truth, settings, settings.seed + k)
               for k, (name, (lo, hi)) in enumerate(splits(n).items())}  # fmt: skip
@@ -230,7 +231,7 @@ def run_drive_bench(ds: Dataset, chosen: list[DriveMethod], settings: DriveSetti
         methods[m.name]["results"] = results
         del scores[m.name]
     return {
-        "benchmark": "drive", "context": run_context(argv), "data": ds.describe(),
+        "benchmark": "drive", "context": context, "data": ds.describe(),
         "n_frames": ds.n_frames, "n_queries": n, "splits": splits(n),
         "reported_splits": list(REPORTED_SPLITS), "tolerance": dm.TOLERANCE,
         "l90_target": dm.TARGET, "recovery_hold": dm.HOLD, "settings": settings.model_dump(),
