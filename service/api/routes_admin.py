@@ -12,13 +12,22 @@ from pydantic.json_schema import SkipJsonSchema
 from starlette.datastructures import FormData, UploadFile
 
 from service.api.auth import require_admin
-from service.api.schemas import ADMIN_ERRORS, ROUTE_FORM, MapParam, TextParam, body_doc
+from service.api.schemas import (
+    ADMIN_ERRORS,
+    APPEND_FORM,
+    ROUTE_FORM,
+    MapParam,
+    TextParam,
+    body_doc,
+)
+from service.core.appends import append_traversals
 from service.core.localization import LocalizationService
 from service.core.traversal_upload import UploadedFile
 from service.errors import RequestValidationError
 from service.wire import (
     MAP_NAME_PATTERN,
     MAX_VERSION,
+    AppendOptions,
     Job,
     JobPage,
     JobState,
@@ -64,6 +73,26 @@ def _route_form(form: FormData) -> tuple[list[UploadFile], list[UploadFile], Tra
     return routes, places, TrainingOptions.model_validate(fields)
 
 
+def _append_form(form: FormData) -> tuple[list[UploadFile], list[UploadFile], AppendOptions]:
+    """The traversal files, their place-index files and the append options of a form."""
+    files = [(k, v) for k, v in form.multi_items() if isinstance(v, UploadFile)]
+    extra_files = sorted({k for k, _ in files if k not in ROUTE_FILE_FIELDS})
+    if extra_files:
+        raise RequestValidationError(f"unexpected file field(s) {', '.join(extra_files)}; "
+                                     "send each traversal as 'file' and place indices as "
+                                     "'places'", fields=extra_files)  # fmt: skip
+    routes = [v for k, v in files if k == "file"]
+    if not routes:
+        raise RequestValidationError("file: send each traversal as one 'file' field", field="file")
+    fields: dict[str, Any] = {}
+    for key in {k for k, v in form.multi_items() if isinstance(v, str)}:
+        values = form.getlist(key)
+        if key != "tag" and len(values) > 1:
+            raise RequestValidationError(f"{key}: the field is given {len(values)} times", field=key)
+        fields[key] = values if key == "tag" else values[0]
+    return routes, [v for k, v in files if k == "places"], AppendOptions.model_validate(fields)
+
+
 def _uploaded(files: list[UploadFile]) -> list[UploadedFile]:
     return [UploadedFile(f.filename or f"upload {i + 1}", f.file) for i, f in enumerate(files)]
 
@@ -101,6 +130,28 @@ async def upload_route(
     if job.reused:
         response.status_code = 200
     return Job.model_validate(job)
+
+
+@router.post("/maps/{name}/versions/{version}/traversals", status_code=201, response_model=Version,
+             summary="Append traversals to a version: a new version, without retraining",
+             openapi_extra=body_doc(None, APPEND_FORM))  # fmt: skip
+async def append(request: Request, response: Response, name: MapPath,
+                 version: VersionPath) -> Version:  # fmt: skip
+    """A multipart form: each traversal as ``file`` (descriptors of the version's width, or
+    an image archive its extractor reads), optionally one ``places`` file per traversal (the
+    place of every row; without one, row ``i`` is place ``i``), condition tags ``tag`` (repeat
+    the field: ``season=winter``), ``extend`` (places beyond the route extend it), ``whiten``
+    and ``activate``. The version's class means take the new rows, in time proportional to
+    them, and the result is published as the map's next immutable version, recording every
+    traversal it was built from and its tags (``extra.traversals``); the version appended to
+    is unchanged. 409 ``retrain_required`` when an extension needs new periods."""
+    async with request.form() as form:
+        routes, places, options = _append_form(form)
+        info = await run_in_threadpool(functools.partial(
+            append_traversals, _service(request), name, version, _uploaded(routes),
+            _uploaded(places), options))  # fmt: skip
+    response.headers["Location"] = f"/v1/maps/{name}/versions/{info.version}"
+    return Version.model_validate(info)
 
 
 @router.get("/jobs", response_model=JobPage, summary="Training jobs, newest first (paginated)")

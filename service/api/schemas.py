@@ -12,6 +12,7 @@ from pydantic.json_schema import SkipJsonSchema
 from service.core.localization import LocalizeResult
 from service.wire import (
     MAP_NAME_PATTERN,
+    AppendOptions,
     BatchLocalization,
     ErrorBody,
     Localization,
@@ -81,6 +82,12 @@ IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
     "map": MAP_FIELD, "image": {**BINARY, "description": "an encoded image (PNG, JPEG…)"}}}  # fmt: skip
 IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
     "map": MAP_FIELD, "images": {"type": "array", "minItems": 1, "items": BINARY}}}  # fmt: skip
+APPEND_FORM = form_schema(AppendOptions, {"file": {
+    **BINARY, "description": ".npy/.npz descriptors of the version's width, or a .zip/.tar of "
+    "images its extractor reads; repeat the field for several traversals"}})  # fmt: skip
+APPEND_FORM["properties"]["places"] = {
+    **BINARY, "description": "optional, once per 'file' in the same order: an integer .npy "
+    "giving the place of every row (0…N−1; beyond N with extend)"}  # fmt: skip
 ROUTE_FORM = form_schema(TrainingOptions, {"file": {
     **BINARY, "description": ".npy/.npz descriptors, or a .zip/.tar of images in route order; "
     "repeat the field for several traversals of the same places"}})  # fmt: skip

@@ -401,5 +401,10 @@ def delete(
     console.print(f"map {map_name}: version {version} deleted", highlight=False)
 
 
+from service.cli.append_command import append  # noqa: E402 - uses the helpers above
+
+app.command()(append)
+
+
 def register(root: typer.Typer) -> None:
     root.add_typer(app, name="client")

@@ -126,6 +126,19 @@ class AsyncGridplaceClient:
         call = calls.upload_route(map, sent, opts, idempotency_key, filename, index, names)
         return await self._send(call, timeout=self.upload_timeout)
 
+    async def append_traversals(
+        self, map: str, version: int, traversals: RouteSource | Sequence[RouteSource], *,
+        places: Sequence[RouteSource] | None = None, tags: Sequence[str] = (),
+        extend: bool = False, whiten: bool | None = None, activate: bool = False,
+    ) -> Version:  # fmt: skip
+        """As :meth:`GridplaceClient.append_traversals` (files read off the event loop)."""
+        opts = calls.append_options(tags, extend, whiten, activate)
+        many = isinstance(traversals, list | tuple)
+        sent = [(await self._read(t, None))[0] for t in (traversals if many else [traversals])]
+        index = None if places is None else [(await self._read(p, None))[0] for p in places]
+        call = calls.append_traversals(map, version, sent if many else sent[0], opts, index)
+        return await self._send(call, timeout=self.upload_timeout)
+
     @staticmethod
     async def _read(
         source: RouteSource, filename: str | None

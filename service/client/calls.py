@@ -23,6 +23,7 @@ from pydantic import TypeAdapter, ValidationError
 from service.client.errors import UnexpectedResponseError
 from service.errors import EmptyInputError, InvalidInputError, InvalidParameterError
 from service.wire import (
+    AppendOptions,
     BatchLocalization,
     Health,
     Job,
@@ -35,6 +36,7 @@ from service.wire import (
     SequenceLocalization,
     TrainingOptions,
     Version,
+    parse_tags,
 )
 
 T = TypeVar("T")
@@ -240,6 +242,49 @@ def upload_route(
     headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
     return Call("POST", f"/v1/maps/{_seg(map_name)}/routes", _reader(Job), admin=True, kwargs={
         "files": files, "data": options.form(), "headers": headers}, files=opened)  # fmt: skip
+
+
+def append_traversals(
+    map_name: str, version: int, traversals: RouteSource | Sequence[RouteSource],
+    options: AppendOptions, places: Sequence[RouteSource] | None = None,
+) -> Call[Version]:  # fmt: skip
+    """One traversal file (or array), or several, each optionally with its place index, and
+    the append options as form fields."""
+    routes = list(traversals) if isinstance(traversals, list | tuple) else [traversals]
+    if not routes:
+        raise EmptyInputError("append_traversals needs at least one traversal")
+    if places is not None and len(places) != len(routes):
+        raise InvalidInputError(
+            f"{len(routes)} traversal(s) need {len(routes)} place-index file(s) (one per "
+            f"traversal, in the same order), got {len(places)}", files=len(routes),
+            places=len(places),
+        )  # fmt: skip
+    opened: list[IO[bytes]] = []
+    try:
+        files = [("file", _upload_part(r, None, f"traversal-{i + 1}.npy", opened))
+                 for i, r in enumerate(routes)]  # fmt: skip
+        files += [("places", _upload_part(p, None, f"places-{i + 1}.npy", opened))
+                  for i, p in enumerate(places or [])]  # fmt: skip
+    except BaseException:
+        for fh in opened:
+            fh.close()
+        raise
+    path = f"/v1/maps/{_seg(map_name)}/versions/{int(version)}/traversals"
+    return Call("POST", path, _reader(Version), admin=True,
+                kwargs={"files": files, "data": options.form()}, files=opened)  # fmt: skip
+
+
+def append_options(tags: Sequence[str], extend: bool, whiten: bool | None,
+                   activate: bool) -> AppendOptions:  # fmt: skip
+    """Validated append options (a bad tag is an error naming it before anything is sent)."""
+    parse_tags(list(tags))
+    fields: dict[str, Any] = {"tag": list(tags), "extend": extend, "activate": activate}
+    if whiten is not None:
+        fields["whiten"] = whiten
+    try:
+        return AppendOptions(**fields)
+    except ValidationError as exc:
+        raise InvalidParameterError(f"invalid append options: {_messages(exc)}") from exc
 
 
 def _upload_part(source: RouteSource, filename: str | None, default: str,

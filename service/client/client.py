@@ -189,6 +189,20 @@ class GridplaceClient:
         return self._send(calls.upload_route(map, route, opts, idempotency_key, filename, places),
                           timeout=self.upload_timeout)  # fmt: skip
 
+    def append_traversals(
+        self, map: str, version: int, traversals: RouteSource | Sequence[RouteSource], *,
+        places: Sequence[RouteSource] | None = None, tags: Sequence[str] = (),
+        extend: bool = False, whiten: bool | None = None, activate: bool = False,
+    ) -> Version:  # fmt: skip
+        """Append one traversal (``.npy`` path, ndarray, or image archive) or several to
+        ``version`` of ``map``: the map's next version, built without retraining (its
+        ``extra.traversals`` records what it was built from). ``places``: one place index per
+        traversal; ``tags``: condition tags ``key=value``; ``extend``: places beyond the route
+        extend it; ``activate``: serve it at once."""
+        opts = calls.append_options(tags, extend, whiten, activate)
+        return self._send(calls.append_traversals(map, version, traversals, opts, places),
+                          timeout=self.upload_timeout)  # fmt: skip
+
     def get_job(self, job_id: str) -> Job:
         return self._send(calls.get_job(job_id))
 

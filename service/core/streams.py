@@ -15,7 +15,10 @@ adapt to: a frame that asked explicitly is refused, one that did not goes throug
 A vehicle's filter and adapter belong to one map *version*: when the served version changes
 (an activation or rollback mid-stream), the map changes, or the client asks for a reset, they
 restart, so scores of two different models are never mixed; turning the filter flag off
-restarts the filter. Filters (adapters) of the least recently seen vehicles are dropped beyond
+restarts the filter. A newly served version of the same places (appended traversals,
+:func:`~service.core.vehicle_state.same_places`) takes the vehicle's filter over, and its
+adapter when the route statistics are the ones it standardises to; the answer's
+``vehicle_state`` says ``carried``, or ``restarted`` when a vehicle's state started afresh. Filters (adapters) of the least recently seen vehicles are dropped beyond
 ``max_vehicles`` or when the stream's filters (adapters) together would hold more than
 ``max_filter_bytes`` (``max_adapter_bytes``).
 
@@ -44,7 +47,12 @@ from service.core.model_store import LoadedModel
 from service.core.sequences import chunk_of
 from service.core.stream_budget import StreamLease
 from service.core.vehicle_state import VehicleState
-from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, adapts
+from service.encoding.adaptation import (
+    AdaptationConfig,
+    AppearanceAdapter,
+    adapts,
+    route_statistics,
+)
 from service.encoding.sequence import SequenceConfig, SequenceFilter
 from service.errors import (
     DimensionMismatchError,
@@ -91,6 +99,15 @@ class FrameAnswer:
     frames_used: int  # frames the filter combined since its start (1 unfiltered)
     latency_ms: float
     adapted: bool = False  # standardised by the vehicle's running statistics first
+    vehicle_state: str = ""  # "carried" into a new version of the same places, or "restarted"
+
+
+def same_statistics(adapter: AppearanceAdapter, model: object) -> bool:
+    """Whether ``adapter`` standardises to ``model``'s route statistics (a version appended
+    from its own keeps them)."""
+    stats = route_statistics(model)
+    return stats is not None and np.array_equal(adapter.route_mean, stats.mean) and \
+        np.array_equal(adapter.route_scale, stats.scale)
 
 
 def one_descriptor(Q: np.ndarray, loaded: LoadedModel, what: str) -> np.ndarray:
@@ -135,6 +152,7 @@ class FleetStream:
             max_vehicles, max_filter_bytes, lambda f: f.nbytes + FILTER_OVERHEAD_BYTES, lease)  # fmt: skip
         self._adapters: VehicleState[str, AppearanceAdapter] = VehicleState(
             max_vehicles, max_adapter_bytes, lambda a: a.nbytes, lease)  # fmt: skip
+        self._adapter_changes: dict[str, str] = {}  # a vehicle's adapter carried or restarted
 
     def close(self) -> None:
         """Drop every vehicle's state and give the lease back (the stream has ended)."""
@@ -189,15 +207,18 @@ class FleetStream:
         index, chunk, conf, used = raw_index, int(raw.chunk[0]), raw_conf, 1
         with self._lock:
             self._check_open()
+            changes = {self._adapter_changes.pop(frame.vehicle_id, "")}
             if frame.sequence_filter:
                 index, conf, used = self._track(frame, loaded, Q)
                 chunk = int(chunk_of(loaded, index))
+                changes.add(self._filters.change)
             else:
                 self._filters.drop(frame.vehicle_id)
+        state = "restarted" if "restarted" in changes else "carried" if "carried" in changes else ""
         return FrameAnswer(
             frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
             frame.sequence_filter, raw_index, raw_conf, used,
-            (time.perf_counter() - start) * 1000.0, adapted,
+            (time.perf_counter() - start) * 1000.0, adapted, state,
         )  # fmt: skip
 
     def _check_open(self) -> None:
@@ -208,7 +229,7 @@ class FleetStream:
         """The vehicle's filtered estimate after ``Q``: index, confidence, frames used."""
         track = self._filters.current(
             frame.vehicle_id, loaded, lambda: SequenceFilter(loaded.n_frames, self.config),
-            restart=frame.reset,
+            restart=frame.reset, carry=lambda f: f.n_frames == loaded.n_frames,
         )  # fmt: skip
         estimate = track.update(loaded.model.frame_log_scores(Q)[0])
         return estimate.index, estimate.confidence, estimate.frames_used
@@ -219,10 +240,14 @@ class FleetStream:
                       f"map {loaded.map!r} version {loaded.version}")  # fmt: skip
 
     def _adapter(self, frame: Frame, loaded: LoadedModel) -> AppearanceAdapter:
-        return self._adapters.current(
+        adapter = self._adapters.current(
             frame.vehicle_id, loaded,
             lambda: AppearanceAdapter.for_model(loaded.model, self.adaptation), restart=frame.reset,
+            carry=lambda a: same_statistics(a, loaded.model),
         )  # fmt: skip
+        if self._adapters.change:  # answered by finish(), after other vehicles' prepare()
+            self._adapter_changes[frame.vehicle_id] = self._adapters.change
+        return adapter
 
     def _query(self, loaded: LoadedModel, frame: Frame, dtype: type) -> np.ndarray:
         if frame.descriptor is not None and frame.image is not None:

@@ -106,7 +106,7 @@ def parse_traversals(
         used += X.nbytes
         arrays.append(X)
         kinds.add(kind)
-    index = [_read_places(p, arrays[i].shape[0], limit_bytes - used) for i, p in enumerate(places)]
+    index = [read_places(p, arrays[i].shape[0], limit_bytes - used) for i, p in enumerate(places)]
     tr = as_traversals(arrays, index or None, keep_dtype=True,
                        names=[f.name for f in files])  # fmt: skip
     if places:
@@ -122,7 +122,7 @@ def _too_large(limit_bytes: int, several: bool) -> PayloadTooLargeError:
     )  # fmt: skip
 
 
-def _read_places(upload: UploadedFile, n_rows: int, budget: int) -> np.ndarray:
+def read_places(upload: UploadedFile, n_rows: int, budget: int) -> np.ndarray:
     """One traversal's place index (a 1-D integer ``.npy``/``.npz``), its header checked
     against the traversal's rows before the data is read."""
     what = f"the place index {upload.name!r}"

@@ -62,6 +62,7 @@ def stream_response(a: FrameAnswer) -> pb.StreamResponse:
         index=a.index, chunk=a.chunk, confidence=a.confidence, filtered=a.filtered,
         raw_index=a.raw_index, raw_confidence=a.raw_confidence, frames_used=a.frames_used,
         latency_ms=a.latency_ms, adapted=a.adapted,
+        vehicle_state=a.vehicle_state,
     )  # fmt: skip
 
 

@@ -18,6 +18,7 @@ Conventions for a new body:
   in :mod:`service.errors` (``service.errors.error_class`` maps a code back).
 """
 
+from service.wire.appends import AppendOptions, parse_tags
 from service.wire.base import (
     JOB_STATES,
     MAP_NAME_PATTERN,
@@ -54,6 +55,7 @@ __all__ = [
     "MAX_VERSION",
     "TERMINAL_STATES",
     "Answer",
+    "AppendOptions",
     "BatchLocalization",
     "BatchLocalizeRequest",
     "ErrorBody",
@@ -79,4 +81,5 @@ __all__ = [
     "Version",
     "VersionNumber",
     "exactly_one_of",
+    "parse_tags",
 ]

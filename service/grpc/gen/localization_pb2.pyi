@@ -84,7 +84,7 @@ class Error(_message.Message):
     def __init__(self, code: _Optional[str] = ..., status: _Optional[str] = ..., message: _Optional[str] = ...) -> None: ...
 
 class StreamResponse(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error", "adapted")
+    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error", "adapted", "vehicle_state")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -99,6 +99,7 @@ class StreamResponse(_message.Message):
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
     ERROR_FIELD_NUMBER: _ClassVar[int]
     ADAPTED_FIELD_NUMBER: _ClassVar[int]
+    VEHICLE_STATE_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -113,7 +114,8 @@ class StreamResponse(_message.Message):
     latency_ms: float
     error: Error
     adapted: bool
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ..., adapted: _Optional[bool] = ...) -> None: ...
+    vehicle_state: str
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ..., adapted: _Optional[bool] = ..., vehicle_state: _Optional[str] = ...) -> None: ...
 
 class ListMapsRequest(_message.Message):
     __slots__ = ()

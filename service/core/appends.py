@@ -1,0 +1,128 @@
+"""Appending traversals to a map version: a new immutable version, without retraining.
+
+``POST /v1/maps/{name}/versions/{v}/traversals`` (and ``gridplace client append``) sends one or
+more traversals of the version's places — descriptors of the version's width, or an image
+archive its extractor reads — each optionally with a place index (the place of every row;
+without one, row ``i`` is place ``i``), and condition tags ``key=value`` (``season=winter``).
+The version's model takes them with :meth:`~service.encoding.encoder.PhaseEncoder.partial_fit`
+(:mod:`service.encoding.appending`: time proportional to the new rows) and is published as
+the map's next version through the registry, like every version: written atomically into a
+new artifact directory, checksummed, recorded in one transaction, so a process killed during
+an append leaves no version behind (at most an orphan directory that no row points to,
+removed by the registry's orphan cleanup). The version appended to stays as it was.
+
+The new version's ``extra`` records what it was built from: ``appended_to`` (the version),
+``traversals`` (every traversal so far: the first version's, then each appended one with its
+rows, places, content hash and tags) and ``append`` (seconds, whether the route was extended,
+whether condition whitening was learnt). An extension (``extend``: places beyond the route)
+keeps every existing index; a code whose periods cannot label it answers 409
+``retrain_required``.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from service.core.traversal_upload import UploadedFile, read_places
+from service.core.uploads import parse_route
+from service.errors import DimensionMismatchError, InvalidInputError, PayloadTooLargeError
+from service.imaging import make_extractor, parse_extractor_config
+from service.registry.models import VersionInfo
+from service.wire.appends import AppendOptions
+
+if TYPE_CHECKING:
+    from service.core.localization import LocalizationService
+
+def append_traversals(
+    service: LocalizationService, name: str, version: int, files: Sequence[UploadedFile],
+    places: Sequence[UploadedFile], options: AppendOptions,
+) -> VersionInfo:  # fmt: skip
+    """Publish ``version`` of map ``name`` with ``files`` appended as the map's next version."""
+    registry = service.registry
+    tags = options.tags()
+    base = registry.get_version(name, version)  # 404 before anything is read
+    if not files:
+        raise InvalidInputError("send the traversal as one or more 'file' fields")
+    if places and len(places) != len(files):
+        raise InvalidInputError(
+            f"{len(files)} traversal file(s) need {len(files)} 'places' file(s) (one per file, "
+            f"in the same order), got {len(places)}", files=len(files), places=len(places),
+        )  # fmt: skip
+    width = int(base.n_features)
+    config = base.extractor
+    image_config = parse_extractor_config(config)
+    extractor_once = functools.cache(lambda: make_extractor(config))
+
+    def check(n_rows: int, n_features: int) -> None:
+        if n_features != width:
+            raise DimensionMismatchError(
+                f"the traversal has descriptors of d={n_features} but map {name!r} version "
+                f"{version} takes d={width}", expected=width, got=n_features,
+            )  # fmt: skip
+
+    limit = service.settings.max_upload_mb * 1024 * 1024
+    used = 0
+    arrays: list[np.ndarray] = []
+    for upload in files:
+        if limit - used <= 0:
+            raise PayloadTooLargeError(f"the traversals hold more than the {limit}-byte upload "
+                                       "limit (GRIDPLACE_MAX_UPLOAD_MB)", limit_bytes=limit)  # fmt: skip
+        X, _ = parse_route(upload.name, upload.fh, limit - used, extractor_once, check,
+                           image_config.n_features)  # fmt: skip
+        check(*X.shape)
+        used += X.nbytes
+        arrays.append(X)
+    index = [read_places(p, arrays[i].shape[0], limit - used) for i, p in enumerate(places)]
+    model = registry.load_model(name, version)
+    n_before = int(model.n_frames_)
+    if not hasattr(model, "partial_fit"):
+        raise InvalidInputError(
+            f"map {name!r} version {version} is a {base.kind}, which takes no appended "
+            "traversals; upload every traversal as a new route instead", kind=base.kind,
+        )  # fmt: skip
+    start = time.perf_counter()
+    model.partial_fit(arrays if len(arrays) > 1 else arrays[0],
+                      places=(index if len(index) > 1 else index[0]) if index else None,
+                      extend=options.extend, whiten=options.whiten)  # fmt: skip
+    seconds = time.perf_counter() - start
+    record = _lineage(base, arrays, index, tags)
+    extra = {"appended_to": version, "traversals": record["traversals"], "append": {
+        "seconds": round(seconds, 4), "extended_from": n_before if model.n_frames_ > n_before else None,
+        "whitened": getattr(model, "whitening_", None) is not None,
+    }}  # fmt: skip
+    return registry.publish(
+        name, model, params=base.params, extractor=base.extractor,
+        metrics={"append_seconds": round(seconds, 4)}, activate=options.activate,
+        content_sha256=record["content_sha256"], extra=extra,
+    )  # fmt: skip
+
+
+def _lineage(base: VersionInfo, arrays: list[np.ndarray], index: list[np.ndarray],
+             tags: dict[str, str]) -> dict[str, Any]:  # fmt: skip
+    """The traversals the new version is built from, and a content hash covering them all."""
+    earlier = list(base.extra.get("traversals") or [{
+        "version": base.version, "n_traversals": base.n_traversals,
+        "content_sha256": base.content_sha256, "places": [0, base.n_frames - 1],
+        "tags": dict(base.extra.get("tags") or {}),
+    }])  # fmt: skip
+    now = datetime.now(UTC).isoformat()
+    h = hashlib.sha256(f"gridplace-append:{base.map}:{base.version}:{base.sha256}".encode())
+    for i, X in enumerate(arrays):
+        rows = np.ascontiguousarray(X, np.float32)
+        sha = hashlib.sha256(rows.tobytes())
+        places = index[i] if index else np.arange(rows.shape[0])
+        sha.update(np.ascontiguousarray(places, np.int64).tobytes())
+        digest = sha.hexdigest()
+        h.update(digest.encode())
+        earlier.append({"rows": int(rows.shape[0]), "places": [int(places.min()), int(places.max())],
+                        "content_sha256": digest, "tags": dict(tags),
+                        "appended_to": base.version, "appended_at": now})  # fmt: skip
+    return {"traversals": earlier, "content_sha256": h.hexdigest()}

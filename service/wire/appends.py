@@ -1,0 +1,71 @@
+"""The options of an append (``POST /v1/maps/{name}/versions/{v}/traversals``), as form
+fields beside the traversal files, and the condition tags they carry."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from typing import Annotated
+
+from pydantic import Field
+
+from service.errors import InvalidInputError
+from service.wire.base import Request
+
+TAG_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}=[^\s=][^=]{0,199}$"
+MAX_TAGS = 32
+_TAG = re.compile(TAG_PATTERN)
+Tag = Annotated[str, Field(pattern=TAG_PATTERN, description="a condition tag key=value",
+                           examples=["season=winter"])]  # fmt: skip
+
+
+def parse_tags(items: Sequence[str]) -> dict[str, str]:
+    """Condition tags ``key=value`` (a key of letters, digits, ``_.-`` up to 64 characters;
+    a value up to 200 characters without ``=``): a bad or repeated one is an
+    :class:`InvalidInputError` naming it."""
+    if len(items) > MAX_TAGS:
+        raise InvalidInputError(f"{len(items)} tags given; at most {MAX_TAGS}", tags=len(items))
+    tags: dict[str, str] = {}
+    for item in items:
+        if _TAG.match(item) is None:
+            raise InvalidInputError(
+                f"tag {item!r} is not key=value (a key of letters, digits, '_', '.', '-'; a "
+                "value without '='), e.g. season=winter", tag=item,
+            )  # fmt: skip
+        key, value = item.split("=", 1)
+        if key in tags:
+            raise InvalidInputError(f"tag {key!r} is given twice", tag=key)
+        tags[key] = value
+    return tags
+
+
+class AppendOptions(Request):
+    """How the traversals are appended; every field optional."""
+
+    tag: list[Tag] = Field(
+        default_factory=list, max_length=MAX_TAGS,
+        description="condition tags key=value of the traversals (repeat the field), e.g. "
+        "season=winter, time=night; recorded in the new version's traversals",
+    )  # fmt: skip
+    extend: bool = Field(False, description="places beyond the route extend it (each needs a "
+                         "row); every existing place keeps its index")  # fmt: skip
+    whiten: bool | None = Field(
+        None, description="learn the traversals' within-place scatter and whiten the projected "
+        "space by it (unset: where the model allows it, one class per place)",
+    )  # fmt: skip
+    activate: bool = Field(False, description="activate the new version at once")
+
+    def tags(self) -> dict[str, str]:
+        """The tags as a mapping (a key given twice is an error naming it: 400)."""
+        return parse_tags(self.tag)
+
+    def form(self) -> dict[str, str | list[str]]:
+        """The multipart form fields (only the options that were set)."""
+        out: dict[str, str | list[str]] = {}
+        if self.tag:
+            out["tag"] = list(self.tag)
+        for key in ("extend", "whiten", "activate"):
+            value = getattr(self, key)
+            if value is not None and key in self.model_fields_set:
+                out[key] = str(value).lower()
+        return out
