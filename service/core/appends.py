@@ -14,7 +14,9 @@ removed by the registry's orphan cleanup). The version appended to stays as it w
 The new version's ``extra`` records what it was built from: ``appended_to`` (the version),
 ``traversals`` (every traversal so far: the first version's, then each appended one with its
 rows, places, content hash and tags) and ``append`` (seconds, whether the route was extended,
-whether condition whitening was learnt). An extension (``extend``: places beyond the route)
+whether condition whitening was learnt). Its ``metrics.conditions`` are per-condition
+validation figures: for each tag set, how the version appended to localised the new rows
+before learning them (within ±5 frames), beside those of earlier appends. An extension (``extend``: places beyond the route)
 keeps every existing index; a code whose periods cannot label it answers 409
 ``retrain_required``.
 """
@@ -88,6 +90,7 @@ def append_traversals(
             f"map {name!r} version {version} is a {base.kind}, which takes no appended "
             "traversals; upload every traversal as a new route instead", kind=base.kind,
         )  # fmt: skip
+    conditions = _validation(model, base, arrays, index, tags)
     start = time.perf_counter()
     model.partial_fit(arrays if len(arrays) > 1 else arrays[0],
                       places=(index if len(index) > 1 else index[0]) if index else None,
@@ -100,9 +103,28 @@ def append_traversals(
     }}  # fmt: skip
     return registry.publish(
         name, model, params=base.params, extractor=base.extractor,
-        metrics={"append_seconds": round(seconds, 4)}, activate=options.activate,
+        metrics={"append_seconds": round(seconds, 4), "conditions": conditions},
+        activate=options.activate,
         content_sha256=record["content_sha256"], extra=extra,
     )  # fmt: skip
+
+
+def _validation(model: Any, base: VersionInfo, arrays: list[np.ndarray], index: list[np.ndarray],
+                tags: dict[str, str]) -> dict[str, Any]:  # fmt: skip
+    """Per-condition validation figures: how the version appended to localises the new
+    traversals before it learns them (rows at its own places, within ±5 frames), keyed by
+    the traversals' tags, beside the figures of earlier appends."""
+    out = dict(base.metrics.get("conditions") or {})
+    rows = np.concatenate(arrays) if len(arrays) > 1 else arrays[0]
+    places = np.concatenate(index) if index else np.concatenate([np.arange(a.shape[0]) for a in arrays])
+    known = places < int(model.n_frames_)
+    if not known.any():
+        return out
+    pred = model.predict(rows[known])
+    key = ",".join(f"{k}={v}" for k, v in sorted(tags.items())) or "untagged"
+    out[key] = {"rows": int(known.sum()), "version": base.version,
+                "precision_at_5": round(float(np.mean(np.abs(pred - places[known]) <= 5)), 4)}
+    return out
 
 
 def _lineage(base: VersionInfo, arrays: list[np.ndarray], index: list[np.ndarray],

@@ -100,6 +100,13 @@ def test_an_append_publishes_a_new_version_recording_its_traversals(server, rout
         assert added["rows"] == 120 and added["places"] == [0, 119]
         assert added["tags"] == {"season": "winter", "time": "day"}
         assert v2["extra"]["append"]["whitened"] is True
+        # per-condition validation: v1 localising the winter rows before it learnt them
+        from service.registry import Registry as _R
+
+        before = _R(server.data_dir).load_model("route", 1).predict(qry[:120])
+        want = round(float(np.mean(np.abs(before - np.arange(120)) <= 5)), 4)
+        assert v2["metrics"]["conditions"] == {
+            "season=winter,time=day": {"rows": 120, "version": 1, "precision_at_5": want}}
         # the version appended to is untouched and both are checksummed artifacts
         assert c.get("/v1/maps/route/versions/1", headers=AUTH).json() == v1
         data_dir = server.data_dir
@@ -133,6 +140,7 @@ def test_appending_to_an_appended_version_keeps_the_whole_record(server, route) 
         v = gp.append_traversals("route", max(versions), qry[120:], places=[np.arange(120, N)],
                                  tags=["season=winter"])  # fmt: skip
         assert v.n_traversals == 3 and v.extra["appended_to"] == max(versions)
+        assert set(v.metrics["conditions"]) == {"season=winter,time=day", "season=winter"}
         assert [t.get("tags") for t in v.extra["traversals"]][1:] == [
             {"season": "winter", "time": "day"}, {"season": "winter"}]  # fmt: skip
 
