@@ -15,9 +15,10 @@ adapt to: a frame that asked explicitly is refused, one that did not goes throug
 A vehicle's filter and adapter belong to one map *version*: when the served version changes
 (an activation or rollback mid-stream), the map changes, or the client asks for a reset, they
 restart, so scores of two different models are never mixed; turning the filter flag off
-restarts the filter. A newly served version of the same places (appended traversals,
-:func:`~service.core.vehicle_state.same_places`) takes the vehicle's filter over, and its
-adapter when the route statistics are the ones it standardises to; the answer's
+restarts the filter. A newly served version built from the vehicle's by appending traversals
+(:func:`~service.core.vehicle_state.lineage`) takes the vehicle's filter over when it has as
+many places, and its adapter when its route statistics are the ones the adapter standardises
+to; the answer's
 ``vehicle_state`` says ``carried``, or ``restarted`` when a vehicle's state started afresh. Filters (adapters) of the least recently seen vehicles are dropped beyond
 ``max_vehicles`` or when the stream's filters (adapters) together would hold more than
 ``max_filter_bytes`` (``max_adapter_bytes``).

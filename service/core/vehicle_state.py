@@ -3,13 +3,13 @@
 A vehicle's sequence filter and its appearance adapter are both built from one served model
 version: when the version (or the map) behind a key changes, or the caller asks for a
 restart, the state starts afresh, so two models' evidence is never mixed — except that a
-version that indexes the same places (:func:`same_places`: the same number of places, and
-one version built from the other by appending traversals, or both from a common one) takes
-the state over when the state says it fits (``carry``): a vehicle keeps its place across a
-version swap of its route. :attr:`VehicleState.change` says what the last :meth:`current`
-did. Entries beyond
-``max_items``, or beyond ``max_bytes`` of state together, are dropped least recently used
-first (the newest one always stays). Each entry counts its value's bytes and
+version built from the state's own by appending traversals (:func:`lineage`), which indexes
+the same places, takes the state over when the state says it fits (``carry``: the filter
+when the number of places is unchanged, the adapter when the route statistics are): a
+vehicle keeps its place across a version swap of its route; :attr:`VehicleState.change`
+says what the last :meth:`current` did. Entries beyond ``max_items``, or beyond
+``max_bytes`` of state together, are dropped least recently used first (the newest one
+always stays). Each entry counts its value's bytes and
 ``ENTRY_OVERHEAD_BYTES`` for the entry itself (its key of up to 128 characters, the mapping's
 slot; measured with tracemalloc). With a ``lease`` (:mod:`service.core.stream_budget`) every
 entry is also reserved from a server-wide budget before it is kept, and released when it is
@@ -41,25 +41,18 @@ class _Entry(Generic[V]):
     version: int
     value: V
     nbytes: int
-    places: tuple[int, frozenset[int]]  # the version's place count and append lineage
 
 
-def places_of(loaded: LoadedModel) -> tuple[int, frozenset[int]]:
-    """A served version's number of places and its lineage: itself and every version its
-    traversals were appended to (``extra.traversals`` of an appended version)."""
-    lineage = {int(loaded.version)}
+def lineage(loaded: LoadedModel) -> frozenset[int]:
+    """A served version and every version it was built from by appending traversals (the
+    ``version`` and ``appended_to`` of its ``extra.traversals``)."""
+    versions = {int(loaded.version)}
     extra = getattr(getattr(loaded, "info", None), "extra", None) or {}
     for t in extra.get("traversals") or []:
         for key in ("version", "appended_to"):
             if isinstance(t.get(key), int):
-                lineage.add(int(t[key]))
-    return int(loaded.n_frames), frozenset(lineage)
-
-
-def same_places(a: tuple[int, frozenset[int]], b: tuple[int, frozenset[int]]) -> bool:
-    """Whether two versions of one map index the same places: as many places, and lineages
-    that meet (one appended from the other, or both from a common version)."""
-    return a[0] == b[0] and not a[1].isdisjoint(b[1])
+                versions.add(int(t[key]))
+    return frozenset(versions)
 
 
 class VehicleState(Generic[K, V]):
@@ -91,16 +84,15 @@ class VehicleState(Generic[K, V]):
     def current(self, key: K, loaded: LoadedModel, start: Callable[[], V],
                 restart: bool = False, carry: Callable[[V], bool] | None = None) -> V:  # fmt: skip
         """``key``'s state for ``loaded`` (``start()`` makes a new one when there is none, it
-        belongs to another map or version, or ``restart``); a state of another version of the
-        same places is kept when ``carry(state)`` says it fits. Marks it the most recently
-        used."""
+        belongs to another map or version, or ``restart``); a state of a version ``loaded``
+        was appended from is kept when ``carry(state)`` says it fits. Marks it the most
+        recently used."""
         entry = self._entries.get(key)
         self.change = ""
         if (entry is not None and not restart and entry.map == loaded.map
                 and entry.version != loaded.version and carry is not None):  # fmt: skip
-            places = places_of(loaded)
-            if same_places(entry.places, places) and carry(entry.value):
-                entry.version, entry.places, self.change = loaded.version, places, "carried"
+            if entry.version in lineage(loaded) and carry(entry.value):
+                entry.version, self.change = loaded.version, "carried"
         if entry is None or restart or entry.map != loaded.map or entry.version != loaded.version:
             self.change = "" if entry is None else "restarted"
             self.drop(key)
@@ -116,7 +108,7 @@ class VehicleState(Generic[K, V]):
                 except Exception:
                     del value  # not kept alive by the traceback until the error is answered
                     raise
-            entry = _Entry(loaded.map, loaded.version, value, size, places_of(loaded))
+            entry = _Entry(loaded.map, loaded.version, value, size)
             self._entries[key] = entry
             self._bytes += size
         self._entries.move_to_end(key)
