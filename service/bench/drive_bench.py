@@ -193,7 +193,9 @@ def fit_method(m: DriveMethod, ds: Dataset, queries: np.ndarray) -> tuple[np.nda
     best = scores.argmax(axis=1)
     single = {name: float(dm.correct(best[lo:hi], ds.ground_truth[lo:hi]).mean())
               for name, (lo, hi) in splits(queries.shape[0]).items()}  # fmt: skip
+    periods = getattr(model, "periods_", None)
     info = {"params": m.params, **footprint(model), "fit_seconds": fit_s,
+            "periods": None if periods is None else [int(p) for p in periods],
             "score_us_per_query": 1e6 * score_s / queries.shape[0], "single": single}  # fmt: skip
     return scores, info
 

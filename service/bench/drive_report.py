@@ -68,8 +68,10 @@ def rows(report: dict[str, Any], config: str, split: str) -> list[tuple[list[str
         short = f.get("short")
         curve = short["curve"] if short else []
         rev = f.get("reverse")
+        periods = m.get("periods") or []
+        label = f"{name} ({'×'.join(map(str, periods))})" if len(periods) > 1 else name
         cells = [
-            name, _bytes(m["bytes"]), _bytes(code_bytes(m)), _pct(m["single"][split]),
+            label, _bytes(m["bytes"]), _bytes(code_bytes(m)), _pct(m["single"][split]),
             _pct(f["whole"]["precision"]) if "whole" in f else "–", _l90(short),
             *(_pct(curve[at - 1]) if len(curve) >= at else "–" for at in SHORT_AT),
             _pct(f["speed"]["precision"]) if "speed" in f else "–", _kidnap(f.get("kidnap")),

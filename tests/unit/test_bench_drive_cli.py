@@ -45,6 +45,8 @@ def test_the_bench_drives_every_method_through_the_filter(tmp_path: Path) -> Non
             assert 0.0 <= f["speed"]["precision"] <= 1.0
             assert set(f["speed"]["by_profile"]) == set(dp.SPEED_PROFILES)
             assert f["kidnap"]["recovery"]["drives"] == 4
+    assert len(r["methods"]["residue-r0.1"]["periods"]) == 2  # the fitted code is recorded
+    assert r["methods"]["exact-nn"]["periods"] is None
     nn = r["methods"]["exact-nn"]["results"]["default"]["B"]["none"]
     assert nn["whole"]["precision"] > 0.9 and nn["short"]["l90"] is not None
     assert nn["reverse"]["precision_reverse_filter"] > 0.9  # a reverse drive needs reverse=true
