@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from service.encoding.inverted_file import default_nprobe
+
 
 def _series(pts: list[dict[str, Any]]) -> dict[str, list[tuple[int, float, float]]]:
     """``name → [(N, single CPU s, stored bytes)]`` of every method measured at some N."""
@@ -16,8 +18,17 @@ def _series(pts: list[dict[str, Any]]) -> dict[str, list[tuple[int, float, float
         preset = p["params"]["encoder_preset"]
         for key in ("ivf", "flat"):
             if key in s:
-                out.setdefault(f"gridplace {preset} ({key})", []).append(
+                ivf = s["inverted_file"]
+                probe = "" if key == "flat" else (
+                    f", nprobe ≈ 1/{round(ivf['nlist'] / ivf['nprobe'])} of the lists")
+                out.setdefault(f"gridplace {preset} ({key}{probe})", []).append(
                     (n, s[key]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
+        sweep = s.get("nprobe_sweep")
+        if sweep:  # the default nprobe of today's rule, where the sweep measured it
+            probe = default_nprobe(int(sweep["nlist"]))
+            nearest = min(sweep["probes"], key=lambda v: abs(v - probe))
+            out.setdefault(f"gridplace {preset} (ivf, nprobe ≈ 1/64 of the lists)", []).append(
+                (n, sweep["latency"][str(nearest)]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
         for kind, f in p["faiss"].items():
             if "skipped" not in f:
                 out.setdefault(f"FAISS {kind}", []).append(

@@ -92,7 +92,8 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
 
 
 def test_the_default_lists_and_probes() -> None:
-    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 125
+    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 62
+    assert default_nlist(100_000) == 1265 and default_nprobe(1265) == 19
     assert default_nlist(3) == 3 and default_nprobe(3) == 3
     assert default_nprobe(100) == 16
 
