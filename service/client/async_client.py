@@ -104,9 +104,10 @@ class AsyncGridplaceClient:
 
     async def localize_sequence(self, map: str, descriptors: ArrayLike, *,
                                 adaptation: bool | None = None,
+                                odometry: Sequence[float | None] | None = None,
                                 **filter_params: Any) -> SequenceLocalization:  # fmt: skip
         return await self._send(calls.localize_sequence(map, descriptors, filter_params,
-                                                        adaptation))  # fmt: skip
+                                                        adaptation, odometry))  # fmt: skip
 
     async def upload_route(self, map: str, route: RouteSource | Sequence[RouteSource],
                            options: TrainingOptions | None = None, *,

@@ -180,16 +180,28 @@ def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalizat
 
 def localize_sequence(
     map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any],
-    adaptation: bool | None = None,
+    adaptation: bool | None = None, odometry: Sequence[float | None] | None = None,
 ) -> Call[SequenceLocalization]:  # fmt: skip
-    """Rows in driving order, one binary float32 request; filter options are checked against
-    their static bounds before anything is sent (the server checks the rest). ``adaptation``
-    unset: the server's default."""
+    """Rows in driving order, one binary float32 request (JSON with base64 rows when
+    ``odometry`` is given: one displacement per row, reference frames, ``None`` for a row
+    without); filter options are checked against their static bounds before anything is sent
+    (the server checks the rest). ``adaptation`` unset: the server's default."""
     X = as_float32_rows(descriptors, "descriptors")
     try:
         options = SequenceFilterOptions(**filter_params).given()
     except ValidationError as exc:
         raise InvalidParameterError(f"invalid sequence filter options: {_messages(exc)}") from exc
+    if odometry is not None:
+        body: dict[str, Any] = {
+            "map": map_name, "descriptors_b64": base64.b64encode(X.tobytes()).decode(),
+            "odometry": [None if u is None else float(u) for u in odometry],
+        }  # fmt: skip
+        if options:
+            body["filter"] = options
+        if adaptation is not None:
+            body["adaptation"] = adaptation
+        return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization),
+                    kwargs={"json": body})  # fmt: skip
     if adaptation is not None:
         options["adaptation"] = adaptation
     params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}

@@ -159,13 +159,15 @@ class GridplaceClient:
 
     def localize_sequence(
         self, map: str, descriptors: ArrayLike, *, adaptation: bool | None = None,
-        **filter_params: Any,
+        odometry: Sequence[float | None] | None = None, **filter_params: Any,
     ) -> SequenceLocalization:  # fmt: skip
         """An n × d matrix whose rows are one drive in order: the sequence filter's estimate
         and each frame's own answer; ``filter_params`` (e.g. ``emission_scale=0.2``,
         ``reverse=True``) override the server's filter defaults; ``adaptation`` turns
-        appearance adaptation on or off (unset: the server's default)."""
-        return self._send(calls.localize_sequence(map, descriptors, filter_params, adaptation))
+        appearance adaptation on or off (unset: the server's default); ``odometry``: the
+        vehicle's displacement since the previous row, reference frames, one per row."""
+        return self._send(calls.localize_sequence(map, descriptors, filter_params, adaptation,
+                                                  odometry))  # fmt: skip
 
     # -- admin ------------------------------------------------------------------------------
     def upload_route(

@@ -22,7 +22,7 @@ from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
 from service.encoding import check_descriptors
 from service.encoding.adaptation import adapt_drive, adapts
-from service.encoding.sequence import SequenceConfig, sequence_localize
+from service.encoding.sequence import SequenceConfig, check_odometry, sequence_localize
 from service.errors import EmptyInputError, InvalidInputError
 
 MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
@@ -66,24 +66,24 @@ class SequenceLocalizer:
         self.service = service
 
     def localize(self, name: str, X: Any, config: SequenceConfig,
-                 adapt: bool | None = None) -> SequenceResult:  # fmt: skip
+                 adapt: bool | None = None, odometry: Any = None) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
-        return self.run(loaded, Q, config, start, "descriptor", adapt)
+        return self.run(loaded, Q, config, start, "descriptor", adapt, odometry)
 
     def localize_bytes(
         self, name: str, data: bytes, n_features: int | None, config: SequenceConfig,
-        adapt: bool | None = None,
+        adapt: bool | None = None, odometry: Any = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = self.service.query_bytes(loaded, data, n_features)
-        return self.run(loaded, Q, config, start, "binary", adapt)
+        return self.run(loaded, Q, config, start, "binary", adapt, odometry)
 
     def localize_images(
         self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig,
-        adapt: bool | None = None,
+        adapt: bool | None = None, odometry: Any = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         if not images:
@@ -92,7 +92,7 @@ class SequenceLocalizer:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.service.served(name)
         Q = self.service.query_images(loaded, images)
-        return self.run(loaded, Q, config, start, "image", adapt)
+        return self.run(loaded, Q, config, start, "image", adapt, odometry)
 
     def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
         """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
@@ -102,9 +102,11 @@ class SequenceLocalizer:
 
     def run(
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,
-        adapt: bool | None = None,
+        adapt: bool | None = None, odometry: Any = None,
     ) -> SequenceResult:  # fmt: skip
-        """Filter validated queries ``Q`` (rows in driving order) on ``loaded``."""
+        """Filter validated queries ``Q`` (rows in driving order) on ``loaded``, with the
+        vehicle's per-frame ``odometry`` (reference frames; ``None`` entries: frames without)."""
+        u = None if odometry is None else check_odometry(odometry, Q.shape[0])
         limit = min(MAX_SEQUENCE_FRAMES, max(1, MAX_SEQUENCE_WORK // loaded.n_frames))
         if Q.shape[0] > limit:
             raise InvalidInputError(
@@ -118,7 +120,7 @@ class SequenceLocalizer:
         if adapted:
             Q = adapt_drive(loaded.model, Q, self.service.settings.adaptation())
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
-        track = sequence_localize(loaded.model, Q, config)
+        track = sequence_localize(loaded.model, Q, config, odometry=u)
         return SequenceResult(
             loaded.map,
             loaded.version,

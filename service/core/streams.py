@@ -54,7 +54,9 @@ from service.encoding.adaptation import (
     adapts,
     route_statistics,
 )
-from service.encoding.sequence import SequenceConfig, SequenceFilter
+from service.encoding.drive_scoring import drive_scorer
+from service.encoding.sequence import SequenceConfig, check_odometry
+from service.encoding.tracking import DriveTracker
 from service.errors import (
     DimensionMismatchError,
     EmptyInputError,
@@ -83,6 +85,7 @@ class Frame:
     sequence_filter: bool = False
     reset: bool = False
     adapt: bool | None = None  # appearance adaptation; None: the stream's default
+    odometry: float | None = None  # displacement since the previous frame, reference frames
 
 
 @dataclass(slots=True)
@@ -149,8 +152,8 @@ class FleetStream:
         self.lease = lease
         self.closed = False
         self._lock = threading.Lock()
-        self._filters: VehicleState[str, SequenceFilter] = VehicleState(
-            max_vehicles, max_filter_bytes, lambda f: f.nbytes + FILTER_OVERHEAD_BYTES, lease)  # fmt: skip
+        self._filters: VehicleState[str, DriveTracker] = VehicleState(
+            max_vehicles, max_filter_bytes, lambda f: f.max_nbytes + FILTER_OVERHEAD_BYTES, lease)  # fmt: skip
         self._adapters: VehicleState[str, AppearanceAdapter] = VehicleState(
             max_vehicles, max_adapter_bytes, lambda a: a.nbytes, lease)  # fmt: skip
         self._adapter_changes: dict[str, str] = {}  # a vehicle's adapter carried or restarted
@@ -228,11 +231,17 @@ class FleetStream:
 
     def _track(self, frame: Frame, loaded: LoadedModel, Q: np.ndarray) -> tuple[int, float, int]:
         """The vehicle's filtered estimate after ``Q``: index, confidence, frames used."""
+        odometry = None
+        if frame.odometry is not None:
+            odometry = float(check_odometry([frame.odometry], 1)[0])
+        scorer = drive_scorer(loaded.model)
         track = self._filters.current(
-            frame.vehicle_id, loaded, lambda: SequenceFilter(loaded.n_frames, self.config),
+            frame.vehicle_id, loaded, lambda: DriveTracker(scorer, self.config),
             restart=frame.reset, carry=lambda f: f.n_frames == loaded.n_frames,
         )  # fmt: skip
-        estimate = track.update(loaded.model.frame_log_scores(Q)[0])
+        if track.scorer is not scorer:  # carried into a new version of the same places
+            track.scorer = scorer
+        estimate = track.update(scorer.prepare_many(Q)[0], odometry)
         return estimate.index, estimate.confidence, estimate.frames_used
 
     def _adapts(self, frame: Frame, loaded: LoadedModel) -> bool:

@@ -93,6 +93,7 @@ class PlaceRecognizer(BaseEstimator):  # type: ignore[misc]
         """``n_frames`` is the number of places; ``n_traversals`` how many traversals of them
         the model was trained on."""
         self.__dict__.pop("_serving_plan", None)  # what serving precomputed is stale
+        self.__dict__.pop("_drive_scorer", None)
         self.n_frames_ = int(n_frames)
         self.n_features_in_ = int(n_features)
         self.n_traversals_ = int(n_traversals)

@@ -47,6 +47,7 @@ def set_temperature(model: Any, temperature: float) -> None:
     model.temperature = float(temperature)
     for part in (model, *getattr(model, "chunk_encoders_", [])):
         part.__dict__.pop("_serving_plan", None)  # scores changed: rebuild on next use
+        part.__dict__.pop("_drive_scorer", None)
         if part is not model:
             part.temperature = float(temperature)
 

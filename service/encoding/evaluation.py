@@ -34,6 +34,7 @@ def evaluate(
     tolerances: tuple[int, ...] = TOLERANCES,
     sequence: SequenceConfig | None = None,
     adaptation: AdaptationConfig | None = None,
+    odometry: Any = None,
 ) -> dict[str, Any]:
     """Precision within ``tolerance`` frames (and at several tolerances), timing, storage.
 
@@ -71,7 +72,8 @@ def evaluate(
         "adaptation": None if adaptation is None else adaptation.model_dump(),
     }
     if sequence is not None:
-        out.update(evaluate_sequence(model, queries, truth, tolerance, tolerances, sequence))
+        out.update(evaluate_sequence(model, queries, truth, tolerance, tolerances, sequence,
+                                     odometry))  # fmt: skip
     return out
 
 
@@ -82,13 +84,15 @@ def evaluate_sequence(
     tolerance: int = 0,
     tolerances: tuple[int, ...] = TOLERANCES,
     config: SequenceConfig | None = None,
+    odometry: Any = None,
 ) -> dict[str, Any]:
     """Precision of the sequence filter's estimates when ``queries`` are one drive in row
-    order (the filter is causal: frame ``t``'s estimate uses frames ``≤ t`` only)."""
+    order (the filter is causal: frame ``t``'s estimate uses frames ``≤ t`` only), with
+    per-frame ``odometry`` (reference frames) when given."""
     truth = _truth(queries, ground_truth)
     config = config or SequenceConfig()
     start = time.perf_counter()
-    track = sequence_localize(model, queries, config)
+    track = sequence_localize(model, queries, config, odometry=odometry)
     elapsed = time.perf_counter() - start
     return {
         "sequence_precision": precision_at(track.index, truth, tolerance),

@@ -1,15 +1,10 @@
 """Sequence localisation: a recursive Bayes filter over the route (beyond the paper).
 
-A vehicle drives the route in order at an unknown, slowly changing speed. The filter is the
-forward pass of a hidden Markov model whose state is ``(speed, frame)``:
+A vehicle drives the route at an unknown, changing speed; it may stop, reverse, or be moved.
+The filter is the forward pass of a hidden Markov model whose state is ``(speed, frame)``:
 
-- **speeds**: a grid ``min_speed, min_speed + speed_step, …, max_speed`` in reference frames per
-  query frame (mirrored to negative speeds with ``reverse``). Each query frame the speed stays,
-  or with probability ``speed_change`` moves to a neighbouring grid speed (a random walk: the
-  vehicle accelerates gradually); with ``reverse``, ``direction_change`` flips its sign.
-- **motion**: a state at frame ``i`` with speed ``v`` moves to ``i + v`` (a fractional ``v``
-  splits its mass between the two nearest frames). Mass driven off either end of the route
-  leaves it.
+- **motion** (:mod:`service.encoding.motion`): the speed prior (a random walk on a speed grid,
+  stops, reversing) or, for a frame that comes with one, the vehicle's own odometry.
 - **relocalisation**: with probability ``relocalization`` the vehicle may be anywhere (a uniform
   jump), so the filter recovers when it has lost track or the vehicle was moved.
 - **emission**: one query's frame log-scores ``L`` (``(N,)``, from a model's
@@ -20,9 +15,14 @@ forward pass of a hidden Markov model whose state is ``(speed, frame)``:
   calibrated log-likelihoods. A frame the model did not score (``−inf``, e.g. outside a
   chunked model's top chunks) gets the lowest score the model gave, so one query cannot veto.
 
-One update costs ``O(S·N)`` for ``S`` grid speeds (a few array passes; nothing depends on how
-many frames came before): the posterior lives in linear space rescaled to sum 1 each frame,
-which is stable because the uniform jump keeps every predicted probability ``≥ ε/(S·N)``.
+One update costs ``O(S·N)`` for ``S`` states (:attr:`SequenceConfig.n_states`; a few array
+passes, nothing depends on how many frames came before). A vehicle holds its ``(S, N)``
+float32 posterior; an update allocates two more arrays of that size for its duration and
+keeps nothing. The posterior lives in linear space rescaled to sum 1 each frame; should it
+ever underflow (a motion prior that drives every state off the route, a vanishing jump
+probability) the filter restarts from the frame's own evidence. :mod:`service.encoding.tracking`
+runs the same model on windows around the belief once a vehicle is localised, at a cost that
+does not grow with the route.
 
 The estimate is the frame with the largest posterior (speeds marginalised); its confidence is
 the posterior mass within ``confidence_radius`` frames of it.
@@ -30,100 +30,27 @@ the posterior mass within ``confidence_radius`` frames of it.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from service.encoding.motion import MotionModel
+from service.encoding.sequence_config import MAX_SPEEDS, SequenceConfig
 from service.errors import InvalidInputError, InvalidParameterError
 
-MAX_SPEEDS = 64  # grid speeds per direction
+__all__ = [
+    "MAX_SPEEDS", "SequenceConfig", "SequenceEstimate", "SequenceFilter", "SequenceTrack",
+    "check_odometry", "check_scores", "emission_log_likelihood", "filter_sequence",
+    "sequence_localize",
+]  # fmt: skip
+
 _BLOCK = 256  # query rows scored per model call in :func:`sequence_localize`, at most
 _SCORE_BUDGET = 1 << 22  # … and at most this many frame scores (32 MiB of float64) per call
 _FLAT = 1e-10  # a row whose spread is below this fraction of its magnitude is flat
-_WORKSPACE_SHAPES = 4  # scratch kept per thread for this many route sizes
 _MIN_LOG_LIKELIHOOD = -60.0  # one frame shrinks a state by at most e⁻⁶⁰ (float32 stays normal)
-
-
-class SequenceConfig(BaseModel):
-    """Parameters of a sequence filter, each with a validated range. The defaults are the best
-    measured on the validation half of Nordland (``gridplace bench sequence``: exact NN and
-    gridplace, drives at several speeds and a kidnapped vehicle); only the speed range is a
-    prior on the vehicle, widen it for a vehicle that is faster relative to the map."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    min_speed: float = Field(
-        0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame"
-    )
-    max_speed: float = Field(
-        2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame"
-    )
-    speed_step: float = Field(0.25, gt=0.0, le=50.0, description="spacing of the speed grid")
-    speed_change: float = Field(
-        0.01, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
-    )
-    reverse: bool = Field(False, description="the vehicle may drive the route backwards")
-    direction_change: float = Field(
-        0.001, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
-    )
-    stop_probability: float = Field(
-        0.0, ge=0.0, le=0.5, description="probability per frame of stopping (0: no stopped state)"
-    )
-    start_probability: float = Field(
-        0.2, gt=0.0, le=1.0, description="probability per frame that a stopped vehicle moves on"
-    )
-    relocalization: float = Field(
-        1e-4, gt=0.0, le=1.0, description="probability per frame of a jump anywhere on the route"
-    )
-    emission: Literal["zscore", "raw"] = Field(
-        "zscore", description="zscore: standardise each query's frame scores; raw: use them as is"
-    )
-    emission_scale: float = Field(0.1, gt=0.0, le=1e6, description="weight of one query's evidence")
-    confidence_radius: int = Field(
-        5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
-    )
-
-    @model_validator(mode="after")
-    def _speeds(self) -> SequenceConfig:
-        if self.max_speed < self.min_speed:
-            raise ValueError(f"max_speed {self.max_speed} is below min_speed {self.min_speed}")
-        if self.max_speed - self.min_speed > (MAX_SPEEDS - 1 + 1e-6) * self.speed_step:
-            raise ValueError(  # compared without dividing: a tiny step must not overflow
-                f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has more "
-                f"than {MAX_SPEEDS} speeds (raise speed_step)"
-            )
-        return self
-
-    @classmethod
-    def parse(cls, **kwargs: Any) -> SequenceConfig:
-        """Like the constructor, but raises :class:`InvalidParameterError`."""
-        try:
-            return cls(**kwargs)
-        except ValidationError as exc:
-            msgs = "; ".join(
-                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}"
-                for e in exc.errors()
-            )
-            raise InvalidParameterError(f"invalid sequence filter parameters: {msgs}") from exc
-
-    @property
-    def n_states(self) -> int:
-        """Rows of a filter's state: grid speeds (both directions with ``reverse``), plus the
-        stopped state when ``stop_probability > 0``; one update costs ``O(n_states · N)``."""
-        return int(self.speeds().size) + int(self.stop_probability > 0)
-
-    def speeds(self) -> np.ndarray:
-        """The speed grid (ascending; negative speeds too with ``reverse``)."""
-        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
-        v = self.min_speed + self.speed_step * np.arange(n)
-        if self.reverse:
-            v = np.concatenate([-v[::-1], v])
-        return v
+MAX_DISPLACEMENT = 1e6  # |odometry| per frame, reference frames
 
 
 @dataclass(frozen=True)
@@ -169,27 +96,6 @@ def emission_log_likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray
     return e
 
 
-class _Workspace(threading.local):
-    """Scratch arrays shared by every filter of one thread (per-vehicle memory is the posterior
-    alone: ``4·S·N`` bytes), for the few most recently used state shapes (maps)."""
-
-    def __init__(self) -> None:
-        self.arrays: OrderedDict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = OrderedDict()
-
-    def get(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        bufs = self.arrays.get(shape)
-        if bufs is None:
-            bufs = (np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32))
-            self.arrays[shape] = bufs
-            while len(self.arrays) > _WORKSPACE_SHAPES:
-                self.arrays.popitem(last=False)
-        self.arrays.move_to_end(shape)
-        return bufs
-
-
-_WORKSPACE = _Workspace()
-
-
 class SequenceFilter:
     """One vehicle's recursive Bayes filter over a route of ``n_frames`` frames."""
 
@@ -198,30 +104,9 @@ class SequenceFilter:
             raise InvalidParameterError(f"a route has at least one frame, got {n_frames}")
         self.n_frames = int(n_frames)
         self.config = config or SequenceConfig()
-        v = self.config.speeds()
-        n_dir = v.size // 2 if self.config.reverse else v.size  # speeds per direction
-        self._stop: int | None = None
-        if self.config.stop_probability > 0:  # a stopped state, between the two directions
-            self._stop = n_dir if self.config.reverse else 0
-            v = np.insert(v, self._stop, 0.0)
-        self.speeds = v  # ascending: rows that share the integer part of a speed are contiguous
-        first = [0, n_dir + (self._stop is not None)] if self.config.reverse else [v.size - n_dir]
-        self._blocks = [slice(lo, lo + n_dir) for lo in first]  # each direction's speed grid
-        whole = np.floor(v).astype(np.int64)
-        frac = (v - whole).astype(np.float32)
-        # rows that share the integer part of their speed are shifted by one slice operation
-        self._groups = [
-            (
-                int(a),
-                slice(int(idx[0]), int(idx[-1]) + 1),
-                (1 - frac[idx])[:, None],
-                frac[idx][:, None],
-                bool(frac[idx].any()),
-            )
-            for a in np.unique(whole)
-            for idx in [np.flatnonzero(whole == a)]
-        ]
-        self._post = np.empty((v.size, self.n_frames), dtype=np.float32)
+        self.motion = MotionModel(self.config)
+        self.speeds = self.motion.speeds
+        self._post = np.empty((self.speeds.size, self.n_frames), dtype=np.float32)
         self.reset()
 
     def reset(self) -> None:
@@ -232,8 +117,12 @@ class SequenceFilter:
 
     @property
     def nbytes(self) -> int:
-        """Memory this vehicle's state holds."""
+        """Memory this vehicle's state holds (an update needs twice that again, briefly)."""
         return int(self._post.nbytes)
+
+    @property
+    def frames_used(self) -> int:
+        return self._frames
 
     @property
     def posterior(self) -> np.ndarray:
@@ -247,107 +136,101 @@ class SequenceFilter:
         joint = self._post.astype(np.float64)
         return joint / joint.sum()
 
-    def update(self, frame_log_scores: np.ndarray) -> SequenceEstimate:
-        """Fold in one query's frame log-scores ``(N,)`` and return the filtered estimate."""
-        e = emission_log_likelihood(check_scores(frame_log_scores, self.n_frames), self.config)
-        lik = np.exp(e, out=e).astype(np.float32)[None, :]
+    def set_state(self, state: np.ndarray, frames_used: int) -> None:
+        """Start from a joint posterior ``(S, N)`` (e.g. a tracker's belief, made whole)."""
+        if state.shape != self._post.shape:
+            raise InvalidParameterError(f"expected a state of shape {self._post.shape}")
+        self._post[...] = state
+        self._mass = float(self._post.sum(dtype=np.float64))
+        self._frames = int(frames_used)
+
+    def update(
+        self, frame_log_scores: np.ndarray, odometry: float | None = None
+    ) -> SequenceEstimate:
+        """Fold in one query's frame log-scores ``(N,)`` (and the displacement since the last
+        frame, reference frames, when the vehicle measured it) and return the estimate."""
+        L = check_scores(frame_log_scores, self.n_frames)
+        return self.update_likelihood(likelihood(L, self.config), odometry)
+
+    def update_likelihood(self, lik: np.ndarray, odometry: float | None = None) -> SequenceEstimate:
+        """:meth:`update` with the frame's likelihood ``(N,)`` float32 already computed."""
         if self._frames:
             eps = self.config.relocalization
-            pred = self._predict()  # sums to (at most) 1: mass driven off the route is gone
-            pred += np.float32(eps / ((1.0 - eps) * pred.size))  # the uniform jump, up to 1 − ε
-            np.multiply(pred, lik, out=self._post)
+            pred = np.empty_like(self._post)
+            scratch = np.empty_like(self._post)
+            self.motion.predict(self._post, pred, scratch, (1.0 - eps) / self._mass, odometry)
+            pred += np.float32(eps / pred.size)  # the uniform jump
+            np.multiply(pred, lik[None, :], out=self._post)
         else:
-            self._post *= lik
+            self._post *= lik[None, :]
         self._frames += 1
-        return self._estimate()
+        est = self._estimate()
+        if est is None:  # underflow: nothing of the prior survived this frame's evidence
+            self._post.fill(1.0 / self._post.size)
+            self._post *= lik[None, :]
+            est = self._estimate()
+            assert est is not None  # the likelihood is ≥ e⁻⁶⁰ everywhere
+        return est
 
-    def _predict(self) -> np.ndarray:
-        """Speed change, then motion, of the normalised posterior (into a scratch array; the
-        vehicle's own array is scratch afterwards)."""
-        mixed, pred = _WORKSPACE.get(self._post.shape)
-        self._change_speed(self._post, mixed, pred, 1.0 / self._mass)
-        scratch, N = self._post, self.n_frames
-        for a, rows, keep, move, fractional in self._groups:
-            _shift(pred[rows], mixed[rows], a, keep if fractional else None, N)
-            if fractional:
-                _shift_add(pred[rows], mixed[rows], a + 1, move, scratch[rows], N)
-        return pred
-
-    def _change_speed(
-        self, post: np.ndarray, out: np.ndarray, tmp: np.ndarray, scale: float
-    ) -> None:
-        """``out = scale ·`` (speed random walk on each direction's grid with reflecting ends,
-        stopping and moving on, then direction flips); ``tmp`` is scratch, ``post`` is left as
-        it was."""
-        cfg = self.config
-        q = cfg.speed_change
-        np.multiply(post, np.float32(scale * (1.0 - q)), out=out)  # float32 scalars: float32 loops
-        h = np.float32(0.5 * q * scale)
-        if q > 0:
-            np.multiply(post, h, out=tmp)  # each neighbour's share
-            for block in self._blocks:
-                src, dst = tmp[block], out[block]
-                if src.shape[0] > 1:
-                    dst[1:] += src[:-1]
-                    dst[:-1] += src[1:]
-                    dst[0] += src[0]  # reflect: the missing neighbour's share stays
-                    dst[-1] += src[-1]
-                else:
-                    dst += src
-                    dst += src
-        if self._stop is not None:
-            stopped = np.multiply(post[self._stop], np.float32(scale), out=tmp[self._stop])
-            moving = sum(out[block].sum(axis=0) for block in self._blocks)
-            go, halt = cfg.start_probability, cfg.stop_probability
-            share = stopped * np.float32(go / sum(b.stop - b.start for b in self._blocks))
-            for block in self._blocks:
-                out[block] *= np.float32(1.0 - halt)
-                out[block] += share
-            np.multiply(stopped, np.float32(1.0 - go), out=out[self._stop])
-            out[self._stop] += moving * np.float32(halt)
-        if self.config.reverse:
-            r = self.config.direction_change
-            np.multiply(out[::-1], np.float32(r), out=tmp)  # speed v ↔ −v: the grid is mirrored
-            out *= np.float32(1.0 - r)
-            out += tmp
-
-    def _estimate(self) -> SequenceEstimate:
+    def _estimate(self) -> SequenceEstimate | None:
         marginal = self._post.sum(axis=0)
         self._mass = float(marginal.sum(dtype=np.float64))
+        if not (self._mass > 1e-30 and np.isfinite(self._mass)):
+            return None
         best = int(np.argmax(marginal))
-        r = self.config.confidence_radius
-        near = float(marginal[max(0, best - r) : best + r + 1].sum(dtype=np.float64))
-        conf = min(1.0, near / self._mass)
-        at_best = self._post[:, best].astype(np.float64)
-        speed = float(self.speeds @ at_best / at_best.sum())  # mean speed at the estimated frame
-        return SequenceEstimate(best, conf, float(np.log(max(conf, 1e-300))), self._frames, speed)
+        return estimate_at(self._post[:, best], marginal, best, self._mass, self.speeds,
+                           self.config.confidence_radius, self._frames)  # fmt: skip
 
 
-def _shift(dst: np.ndarray, src: np.ndarray, a: int, w: np.ndarray | None, n: int) -> None:
-    """``dst[:, i] = w · src[:, i − a]`` (0 where the source lies off the route)."""
-    if abs(a) >= n:
-        dst.fill(0.0)
-        return
-    d, s = (slice(a, n), slice(0, n - a)) if a >= 0 else (slice(0, n + a), slice(-a, n))
-    if w is None:
-        dst[:, d] = src[:, s]
-    else:
-        np.multiply(src[:, s], w, out=dst[:, d])
-    if a >= 0:
-        dst[:, :a] = 0.0
-    else:
-        dst[:, n + a :] = 0.0
+def estimate_at(
+    at_best: np.ndarray, marginal: np.ndarray, best: int, mass: float, speeds: np.ndarray,
+    radius: int, frames: int, offset: int = 0,
+) -> SequenceEstimate:  # fmt: skip
+    """The estimate at ``best`` (an index into ``marginal``; the frame is ``best + offset``)."""
+    near = float(marginal[max(0, best - radius) : best + radius + 1].sum(dtype=np.float64))
+    conf = min(1.0, near / mass)
+    col = at_best.astype(np.float64)
+    total = col.sum()
+    speed = float(speeds @ col / total) if total > 0 else 0.0  # mean speed at the estimate
+    return SequenceEstimate(best + offset, conf, float(np.log(max(conf, 1e-300))), frames, speed)
 
 
-def _shift_add(
-    dst: np.ndarray, src: np.ndarray, a: int, w: np.ndarray, tmp: np.ndarray, n: int
-) -> None:
-    """``dst[:, i] += w · src[:, i − a]`` where the source lies on the route (``tmp``: scratch)."""
-    if abs(a) >= n:
-        return
-    d, s = (slice(a, n), slice(0, n - a)) if a >= 0 else (slice(0, n + a), slice(-a, n))
-    np.multiply(src[:, s], w, out=tmp[:, d])
-    dst[:, d] += tmp[:, d]
+def likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray:
+    """One frame's likelihood of every frame, float32 in ``[e⁻⁶⁰, 1]``."""
+    e = emission_log_likelihood(L, config)
+    return np.exp(e, out=e).astype(np.float32)
+
+
+def check_odometry(odometry: Any, n: int) -> np.ndarray:
+    """Per-frame displacements as float64 ``(n,)``, NaN where a frame has none (``None`` in a
+    list, NaN in a float array). Refused: another length, NaN (in a list) or infinity given as
+    a value, ``|u| > 10⁶`` frames."""
+    if isinstance(odometry, np.ndarray) and odometry.dtype != object:
+        u = np.asarray(odometry, dtype=np.float64)  # an array marks frames without by NaN
+        return _check_values(u, n, np.isnan(u))
+    try:
+        rows = list(odometry)
+    except TypeError:
+        raise InvalidInputError("odometry must be a list of displacements, one per frame") from None
+    missing = np.array([r is None for r in rows], dtype=bool)
+    try:
+        u = np.array([np.nan if r is None else float(r) for r in rows], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError("odometry must hold numbers (or null for a frame without)") from None
+    return _check_values(u, n, missing)
+
+
+def _check_values(u: np.ndarray, n: int, missing: np.ndarray) -> np.ndarray:
+    if u.ndim != 1 or u.shape[0] != n:
+        raise InvalidInputError(f"expected {n} odometry values, one per frame, got shape {u.shape}")
+    given = u[~missing]
+    if not np.isfinite(given).all():
+        raise InvalidInputError("odometry contains NaN or infinity (send null for a frame without)")
+    if given.size and np.abs(given).max() > MAX_DISPLACEMENT:
+        raise InvalidInputError(
+            f"an odometry displacement exceeds {MAX_DISPLACEMENT:.0f} frames per query frame"
+        )
+    return u
 
 
 @dataclass(frozen=True)
@@ -363,25 +246,42 @@ class SequenceTrack:
         return int(self.index.shape[0])
 
 
-ScoreFn = Callable[[np.ndarray], np.ndarray]
-
-
-def filter_sequence(scores: np.ndarray, config: SequenceConfig | None = None) -> SequenceTrack:
-    """Run one fresh filter over a drive's frame scores ``(T, N)`` (rows in driving order)."""
+def filter_sequence(
+    scores: np.ndarray, config: SequenceConfig | None = None, odometry: Any = None
+) -> SequenceTrack:
+    """Run one fresh filter over a drive's frame scores ``(T, N)`` (rows in driving order),
+    with per-frame ``odometry`` (``(T,)`` displacements in reference frames, ``None``/NaN-free;
+    see :func:`check_odometry`) when the vehicle measured it. With ``config.tracking`` (the
+    default) the filter tracks windows around its belief once localised
+    (:class:`~service.encoding.tracking.DriveTracker`)."""
     S = np.asarray(scores)
     if S.ndim != 2 or S.shape[0] == 0:
         raise InvalidInputError(f"expected frame scores of shape (T, N) with T >= 1, got {S.shape}")
+    config = config or SequenceConfig()
+    u = None if odometry is None else check_odometry(odometry, S.shape[0])
+    from service.encoding.drive_scoring import MatrixScorer
+    from service.encoding.tracking import DriveTracker
+
+    if config.tracking:
+        tracker = DriveTracker(MatrixScorer(S), config)
+        return _run(tracker.update, range(S.shape[0]), S.shape[0], u,
+                    lambda t, _: int(np.argmax(S[t])))  # fmt: skip
     filt = SequenceFilter(S.shape[1], config)
-    return _run(filt, (S[t] for t in range(S.shape[0])), S.shape[0])
+    return _run(filt.update, (S[t] for t in range(S.shape[0])), S.shape[0], u,
+                lambda _, row: int(np.argmax(row)))  # fmt: skip
 
 
 def sequence_localize(
-    model: Any, queries: Any, config: SequenceConfig | None = None, block: int | None = None
-) -> SequenceTrack:
+    model: Any, queries: Any, config: SequenceConfig | None = None, block: int | None = None,
+    odometry: Any = None,
+) -> SequenceTrack:  # fmt: skip
     """Localize ``queries`` (rows in driving order) as one drive on a fitted model that has
-    ``frame_log_scores`` (every model of :mod:`service.encoding`). Frame scores are computed
-    ``block`` rows at a time (default: as many as fit ``_SCORE_BUDGET`` values, at most 256),
-    so memory stays bounded for any drive and route length."""
+    ``frame_log_scores`` (every model of :mod:`service.encoding`), with optional per-frame
+    ``odometry`` as in :func:`filter_sequence`. With ``config.tracking`` the model's drive
+    scorer (:func:`~service.encoding.drive_scoring.drive_scorer`) scores only the frames the
+    tracker needs; otherwise every frame's scores are computed ``block`` rows at a time
+    (default: as many as fit ``_SCORE_BUDGET`` values, at most 256), so memory stays bounded
+    for any drive and route length."""
     if not hasattr(model, "frame_log_scores"):
         raise InvalidParameterError(f"{type(model).__name__} gives no frame scores")
     Q = np.asarray(queries)
@@ -389,24 +289,39 @@ def sequence_localize(
         raise InvalidInputError(
             f"expected query descriptors of shape (T, d) with T >= 1, got {Q.shape}"
         )
+    config = config or SequenceConfig()
+    u = None if odometry is None else check_odometry(odometry, Q.shape[0])
     n_frames = int(model.n_frames_)
-    filt = SequenceFilter(n_frames, config)
     rows_per_call = block or max(1, min(_BLOCK, _SCORE_BUDGET // n_frames))
+    if config.tracking:
+        from service.encoding.drive_scoring import drive_scorer
+        from service.encoding.tracking import DriveTracker
 
-    def rows() -> Any:
+        scorer = drive_scorer(model)
+        tracker = DriveTracker(scorer, config)
+        preps = (p for s in range(0, Q.shape[0], rows_per_call)
+                 for p in scorer.prepare_many(Q[s : s + rows_per_call]))  # fmt: skip
+        return _run(tracker.update, preps, Q.shape[0], u, lambda _, prep: scorer.best(prep))
+    filt = SequenceFilter(n_frames, config)
+
+    def rows() -> Iterable[np.ndarray]:
         for s in range(0, Q.shape[0], rows_per_call):
             yield from model.frame_log_scores(Q[s : s + rows_per_call])
 
-    return _run(filt, rows(), Q.shape[0])
+    return _run(filt.update, rows(), Q.shape[0], u, lambda _, row: int(np.argmax(row)))
 
 
-def _run(filt: SequenceFilter, rows: Any, n: int) -> SequenceTrack:
+def _run(
+    update: Callable[..., SequenceEstimate], rows: Iterable[Any], n: int, odometry: np.ndarray | None,
+    raw_best: Callable[[int, Any], int],
+) -> SequenceTrack:  # fmt: skip
     index = np.empty(n, dtype=np.int64)
     raw = np.empty(n, dtype=np.int64)
     conf = np.empty(n)
     speed = np.empty(n)
     for t, row in enumerate(rows):
-        est = filt.update(row)
+        u = None if odometry is None or np.isnan(odometry[t]) else float(odometry[t])
+        est = update(row, u)
         index[t], conf[t], speed[t] = est.index, est.confidence, est.speed
-        raw[t] = int(np.argmax(row))
+        raw[t] = raw_best(t, row)
     return SequenceTrack(index, conf, speed, raw)

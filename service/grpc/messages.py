@@ -50,6 +50,7 @@ def frame(request: pb.StreamRequest) -> Frame:
         sequence_filter=request.sequence_filter,
         reset=request.reset_sequence,
         adapt=_ADAPT.get(request.adaptation),
+        odometry=request.odometry if request.HasField("odometry") else None,
     )
 
 

@@ -50,10 +50,34 @@ class SequenceFilterOptions(Request):
         None, description="zscore: standardise each query's frame scores; raw: use them as is"
     )
     emission_scale: float | None = Field(
-        None, gt=0.0, le=1e6, description="weight of one query's evidence"
+        None, gt=0.0, le=1e3, description="weight of one query's evidence"
     )
     confidence_radius: int | None = Field(
         None, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
+    )
+    odometry_noise: float | None = Field(
+        None, ge=0.0, le=10.0,
+        description="odometry's standard deviation as a fraction of the displacement",
+    )
+    odometry_floor: float | None = Field(
+        None, ge=0.0, le=1_000.0,
+        description="odometry's standard deviation in frames at any displacement",
+    )
+    tracking: bool | None = Field(
+        None, description="once localised, update only windows around the belief"
+    )
+    track_radius: int | None = Field(
+        None, ge=4, le=100_000, description="half width of a tracking window, frames"
+    )
+    tracking_mass: float | None = Field(
+        None, gt=0.5, lt=1.0,
+        description="posterior mass within track_radius of the estimate that starts tracking",
+    )
+    check_every: int | None = Field(
+        None, ge=1, le=1_000, description="frames between global checks for other places"
+    )
+    candidates: int | None = Field(
+        None, ge=1, le=16, description="places a global check may open windows at"
     )
 
     def given(self) -> dict[str, Any]:
@@ -66,6 +90,11 @@ class SequenceLocalizeRequest(BatchLocalizeRequest):
     driving order), and optionally the filter's options."""
 
     filter: SequenceFilterOptions | None = Field(None, description="sequence filter options")
+    odometry: list[float | None] | None = Field(
+        None, description="per frame, the vehicle's measured displacement along the route since "
+        "the previous frame, in reference frames (signed; null for a frame without): the "
+        "filter's motion model centres on it. One entry per frame",
+    )  # fmt: skip
     adaptation: bool | None = Field(
         None, description="standardise each frame by the running statistics of the drive's "
         "earlier frames first (appearance adaptation); unset: the server's default "

@@ -196,3 +196,28 @@ def test_the_async_client(server: ServerProcess, synth: Job, route: Route) -> No
     hmm, _ = asyncio.run(main())
     with GridplaceClient(server.url) as gp:
         assert hmm == gp.localize_sequence("synth", Q).index
+
+
+def test_odometry_per_row_reaches_the_filter_and_bad_odometry_is_a_4xx(
+    gp: GridplaceClient, synth: Job, route: Route, data_dir: Path
+) -> None:
+    Q = route[1][20:140]
+    steps: list[float | None] = [1.0] * 120
+    steps[5] = None  # a frame without odometry
+    got = gp.localize_sequence("synth", Q, odometry=steps, adaptation=False)
+    from service.registry import Registry
+
+    model = Registry(data_dir).load_model("synth", got.version)
+    want = sequence_localize(model, Q.astype(np.float32).astype(np.float64), SequenceConfig(),
+                             odometry=steps)  # fmt: skip
+    assert got.index == want.index.tolist()
+    body = {"map": "synth", "descriptors": Q[:3].tolist()}
+    with httpx.Client(base_url=gp.base_url) as raw:
+        for odo, needle in (([1.0, 2.0], "expected 3 odometry values"),
+                            ([1.0, 1e9, 1.0], "exceeds"), ([1.0, "x", 1.0], "odometry")):  # fmt: skip
+            r = raw.post("/v1/localize/sequence", json={**body, "odometry": odo})
+            assert 400 <= r.status_code < 500 and needle in r.text, r.text
+        r = raw.post("/v1/localize/sequence", content=b'{"map": "synth", "descriptors": '
+                     + str(Q[:3].tolist()).encode() + b', "odometry": [1, NaN, 1]}',
+                     headers={"Content-Type": "application/json"})  # fmt: skip
+        assert 400 <= r.status_code < 500, r.text

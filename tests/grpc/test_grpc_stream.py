@@ -189,3 +189,33 @@ def test_frames_may_turn_adaptation_off(served: Served) -> None:
     assert [r.index for r in got[1::2]] == served.oracle[rows[1::2]].tolist()  # as sent
     # the adapted frames form the vehicle's drive: the others neither use nor move its statistics
     assert [r.index for r in got[0::2]] == drive_oracle(model, served.query, rows[0::2]).tolist()
+
+
+def test_odometry_per_frame_moves_the_vehicle_and_bad_odometry_is_refused(served: Served) -> None:
+    """Frames 30…149, the first ten as recorded and the rest drowned in noise: with exact
+    odometry the estimate follows the vehicle, without it much less often."""
+    rows = list(range(30, 150))
+    rng = np.random.default_rng(0)
+    spread = float(served.query.std())
+
+    def drive(vehicle: str, odometry: float | None) -> list[pb.StreamRequest]:
+        out = []
+        for k, i in enumerate(rows):
+            q = served.query[i] + (0 if k < 10 else rng.normal(0, 3 * spread, D))
+            req = pb.StreamRequest(vehicle_id=vehicle, sequence=k, map="route", descriptor=f32(q),
+                                   sequence_filter=True, adaptation=pb.ADAPTATION_OFF)  # fmt: skip
+            if odometry is not None:
+                req.odometry = odometry
+            out.append(req)
+        return out
+
+    bad = [pb.StreamRequest(vehicle_id="odo", sequence=1000 + j, map="route",
+                            descriptor=f32(served.query[5]), sequence_filter=True, odometry=u)
+           for j, u in enumerate([float("nan"), float("inf"), 1e7])]  # fmt: skip
+    with_odo, without = run(served, drive("odo", 1.0) + bad, drive("blind", None))
+    truth = np.array(rows[10:])
+    hit = np.mean(np.abs(np.array([r.index for r in with_odo[10 : len(rows)]]) - truth) <= 2)
+    blind = np.mean(np.abs(np.array([r.index for r in without[10:]]) - truth) <= 2)
+    assert hit > 0.9 and hit > blind + 0.1, (hit, blind)
+    assert [r.error.status for r in with_odo[len(rows):]] == ["INVALID_ARGUMENT"] * 3
+    assert "odometry" in with_odo[len(rows)].error.message

@@ -6,6 +6,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
+from service.encoding.sequence import SequenceConfig
 import pytest
 
 from service.core.context import ServiceContext, build_context
@@ -93,8 +95,8 @@ def test_filters_are_dropped_least_recent_first_beyond_the_byte_budget(
     ctx: tuple[ServiceContext, np.ndarray],
 ) -> None:
     context, Q = ctx
-    # one posterior (S = 7 speeds × N frames of float32), the filter's objects, the entry
-    per_vehicle = 4 * 7 * N + FILTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
+    # at most one whole posterior (S states × N frames of float32), the filter's objects, the entry
+    per_vehicle = 4 * SequenceConfig().n_states * N + FILTER_OVERHEAD_BYTES + ENTRY_OVERHEAD_BYTES
     stream = FleetStream(context.service, max_filter_bytes=2 * per_vehicle)
     for vehicle in ("a", "b", "c"):
         stream.answer(frame(Q, 10, vehicle, sequence_filter=True))

@@ -112,6 +112,53 @@ def test_bad_filter_options_exit_2_naming_the_problem(
         assert "invalid_parameter" in stderr and needle in stderr
 
 
+def test_odometry_files_reach_the_filter(files: dict[str, Path]) -> None:
+    Q = np.load(files["query"])
+    n = Q.shape[0]
+    text = files["root"] / "odo.txt"
+    text.write_text("\n".join("" if t == 3 else "1.0" for t in range(n)) + "\n")
+    npy = files["root"] / "odo.npy"
+    np.save(npy, np.ones(n))
+    pred = files["root"] / "odo-pred.npy"
+    model = load_model(files["model"])
+    steps: list[float | None] = [None if t == 3 else 1.0 for t in range(n)]
+    for path, odometry in ((text, steps), (npy, np.ones(n))):
+        code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence",
+                                 "--no-adapt", "--odometry", path, "--out", pred)  # fmt: skip
+        assert code == 0, stderr
+        want = sequence_localize(model, Q, SequenceConfig(), odometry=odometry).index
+        np.testing.assert_array_equal(np.load(pred), want)
+    code, stdout, stderr = invoke("evaluate", files["model"], files["query"], "--sequence",
+                                  "--odometry", npy, "--json")  # fmt: skip
+    assert code == 0 and json.loads(stdout)["sequence_precision"] >= 0, stderr
+
+
+@pytest.mark.parametrize(
+    ("values", "needle"),
+    [("nan", "NaN"), ("short", "odometry values"), ("word", "not a number"), ("big", "exceeds")],
+)
+def test_bad_odometry_exits_2_naming_the_problem(
+    files: dict[str, Path], values: str, needle: str
+) -> None:
+    n = np.load(files["query"]).shape[0]
+    path = files["root"] / f"bad-{values}.npy"
+    if values == "nan":
+        np.save(path, np.r_[np.ones(n - 1), np.nan])
+    elif values == "short":
+        np.save(path, np.ones(n - 1))
+    elif values == "big":
+        np.save(path, np.r_[np.ones(n - 1), 1e9])
+    else:
+        path = path.with_suffix(".txt")
+        path.write_text("1\nfast\n")
+    for command in ("evaluate", "localize"):
+        code, stdout, stderr = invoke(command, files["model"], files["query"], "--sequence",
+                                      "--odometry", path)  # fmt: skip
+        assert code == 2 and needle in stderr, (command, stdout, stderr)
+    code, _, stderr = invoke("localize", files["model"], files["query"], "--odometry", path)
+    assert code == 2 and "--odometry needs --sequence" in stderr
+
+
 def test_bench_sequence_smoke(tmp_path: Path) -> None:
     """A tiny run of ``gridplace bench sequence`` (cost only) writes its JSON."""
     out = tmp_path / "bench.json"
@@ -120,7 +167,7 @@ def test_bench_sequence_smoke(tmp_path: Path) -> None:
     )
     assert code == 0, stderr
     cost = json.loads(out.read_text())["filter_cost"]["300"]
-    assert cost["hmm"]["cpu_us"] > 0 and cost["seqslam"]["wall_us"] > 0 and cost["hmm_speeds"] == 7
+    assert cost["hmm"]["cpu_us"] > 0 and cost["seqslam"]["wall_us"] > 0 and cost["hmm_speeds"] == SequenceConfig().n_states
     assert "speed-up" in stdout
 
 

@@ -80,7 +80,7 @@ def test_a_noiseless_drive_is_tracked_exactly_after_a_short_warm_up(
 
 def test_the_speed_estimate_converges_to_the_drive() -> None:
     truth = np.arange(0, N - 1, 1.5)
-    got = filter_sequence(scores_along(truth))
+    got = filter_sequence(scores_along(truth), SequenceConfig(reverse=False, stop_probability=0))
     assert abs(got.speed[-50:].mean() - 1.5) < 0.05
     assert got.confidence[-1] > 0.9
 
@@ -93,21 +93,24 @@ def test_the_filter_beats_single_frames_on_a_noisy_drive() -> None:
     assert single < 0.5 and filtered > 0.95, (single, filtered)
 
 
-def test_it_relocalises_after_a_jump() -> None:
+@pytest.mark.parametrize(("tracking", "within"), [(False, 80), (True, 100)])
+def test_it_relocalises_after_a_jump(tracking: bool, within: int) -> None:
+    """The whole-route filter and the windowed tracker (whose global checks open windows at
+    the kidnapped vehicle's place) both find the vehicle again and stay with it."""
     truth = np.concatenate([np.arange(50, 200), np.arange(350, 480)])  # kidnapped at t=150
     S = scores_along(truth, width=3.0, noise=0.5, seed=2)
-    est = track(S)
+    est = track(S, SequenceConfig(tracking=tracking))
     assert np.all(np.abs(est[20:150] - truth[20:150]) <= 2)
     after = np.abs(est[150:] - truth[150:]) <= 2
     recovered = int(np.argmax(after))
-    assert recovered <= 80 and after[recovered:].all(), recovered
+    assert recovered <= within and after[recovered:].all(), recovered
 
 
 def test_reverse_driving_is_tracked_only_when_allowed() -> None:
     truth = np.arange(N - 10, 100, -1)
     S = scores_along(truth, width=3.0, noise=0.5, seed=3)
     backwards = track(S, SequenceConfig(reverse=True))
-    forwards_only = track(S, SequenceConfig(reverse=False))
+    forwards_only = track(S, SequenceConfig(reverse=False, stop_probability=0.0))
     assert np.mean(np.abs(backwards[10:] - truth[10:]) <= 2) > 0.98
     assert np.mean(np.abs(forwards_only[10:] - truth[10:]) <= 2) < 0.9
     got = filter_sequence(S, SequenceConfig(reverse=True))
@@ -117,8 +120,9 @@ def test_reverse_driving_is_tracked_only_when_allowed() -> None:
 def test_a_stopped_state_holds_the_vehicle_where_it_stands() -> None:
     truth = np.concatenate([np.arange(100, 200), np.full(60, 200), np.arange(200, 300)])
     S = scores_along(truth, width=3.0, noise=0.2, seed=4)
-    with_stop = SequenceConfig(stop_probability=0.01)
-    held, moving_only = (np.abs(track(S, c) - truth) <= 2 for c in (with_stop, SequenceConfig()))
+    with_stop = SequenceConfig(stop_probability=0.01, reverse=False)
+    moving = SequenceConfig(stop_probability=0.0, reverse=False)
+    held, moving_only = (np.abs(track(S, c) - truth) <= 2 for c in (with_stop, moving))
     assert held[100:160].mean() > 0.6 and moving_only[100:160].mean() < 0.1  # during the stop
     assert held[160:].mean() > 0.95 > moving_only[160:].mean()  # and after it
     got = filter_sequence(S, with_stop)

@@ -1,0 +1,122 @@
+"""The sequence filter's parameters, validated, with the defaults for real driving.
+
+The motion prior covers what vehicles do on a route: a speed that changes gradually within a
+range, stops and starts, reversing, and jumps (a vehicle moved, or a filter that has lost
+track). The defaults were chosen on the tuning half of Nordland with drives at constant and
+variable speed, stops, reverse drives and kidnaps (``gridplace bench drive --tune``); only the
+speed range is a prior on the vehicle: widen it for a vehicle that is faster relative to the
+map. ``odometry_*`` apply to frames that come with a displacement (path integration);
+``track*`` and ``check_every`` to the windowed tracker that keeps a vehicle's per-frame cost
+independent of the route's length once it is localised.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from service.errors import InvalidParameterError
+
+MAX_SPEEDS = 64  # grid speeds per direction
+
+
+class SequenceConfig(BaseModel):
+    """Parameters of a sequence filter, each with a validated range."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=False)
+
+    min_speed: float = Field(
+        0.5, ge=0.0, le=50.0, description="slowest speed, frames per query frame"
+    )
+    max_speed: float = Field(
+        2.0, ge=0.0, le=50.0, description="fastest speed, frames per query frame"
+    )
+    speed_step: float = Field(0.25, gt=0.0, le=50.0, description="spacing of the speed grid")
+    speed_change: float = Field(
+        0.01, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
+    )
+    reverse: bool = Field(True, description="the vehicle may drive the route backwards")
+    direction_change: float = Field(
+        0.001, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
+    )
+    stop_probability: float = Field(
+        0.03, ge=0.0, le=0.5, description="probability per frame of stopping (0: no stopped state)"
+    )
+    start_probability: float = Field(
+        0.2, gt=0.0, le=1.0, description="probability per frame that a stopped vehicle moves on"
+    )
+    relocalization: float = Field(
+        1e-4, gt=0.0, le=1.0, description="probability per frame of a jump anywhere on the route"
+    )
+    emission: Literal["zscore", "raw"] = Field(
+        "zscore", description="zscore: standardise each query's frame scores; raw: use them as is"
+    )
+    emission_scale: float = Field(
+        0.1, gt=0.0, le=1e3, description="weight of one query's evidence"
+    )
+    confidence_radius: int = Field(
+        5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
+    )
+    odometry_noise: float = Field(
+        0.1, ge=0.0, le=10.0,
+        description="odometry's standard deviation as a fraction of the displacement",
+    )
+    odometry_floor: float = Field(
+        0.25, ge=0.0, le=1_000.0,
+        description="odometry's standard deviation in frames at any displacement",
+    )
+    tracking: bool = Field(
+        True, description="once localised, update only windows around the belief"
+    )
+    track_radius: int = Field(
+        48, ge=4, le=100_000, description="half width of a tracking window, frames"
+    )
+    tracking_mass: float = Field(
+        0.99, gt=0.5, lt=1.0,
+        description="posterior mass within track_radius of the estimate that starts tracking",
+    )
+    check_every: int = Field(
+        4, ge=1, le=1_000, description="frames between global checks for other places"
+    )
+    candidates: int = Field(
+        4, ge=1, le=16, description="places a global check may open windows at"
+    )  # fmt: skip
+
+    @model_validator(mode="after")
+    def _speeds(self) -> SequenceConfig:
+        if self.max_speed < self.min_speed:
+            raise ValueError(f"max_speed {self.max_speed} is below min_speed {self.min_speed}")
+        if self.max_speed - self.min_speed > (MAX_SPEEDS - 1 + 1e-6) * self.speed_step:
+            raise ValueError(  # compared without dividing: a tiny step must not overflow
+                f"the speed grid {self.min_speed}…{self.max_speed} by {self.speed_step} has more "
+                f"than {MAX_SPEEDS} speeds (raise speed_step)"
+            )
+        return self
+
+    @classmethod
+    def parse(cls, **kwargs: Any) -> SequenceConfig:
+        """Like the constructor, but raises :class:`InvalidParameterError`."""
+        try:
+            return cls(**kwargs)
+        except ValidationError as exc:
+            msgs = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}"
+                for e in exc.errors()
+            )
+            raise InvalidParameterError(f"invalid sequence filter parameters: {msgs}") from exc
+
+    @property
+    def n_states(self) -> int:
+        """Rows of a filter's state: grid speeds (both directions with ``reverse``), plus the
+        stopped state when ``stop_probability > 0``; one update costs ``O(n_states · N)``."""
+        return int(self.speeds().size) + int(self.stop_probability > 0)
+
+    def speeds(self) -> np.ndarray:
+        """The speed grid (ascending; negative speeds too with ``reverse``)."""
+        n = int(np.floor((self.max_speed - self.min_speed) / self.speed_step + 1e-9)) + 1
+        v = self.min_speed + self.speed_step * np.arange(n)
+        if self.reverse:
+            v = np.concatenate([-v[::-1], v])
+        return v
