@@ -38,7 +38,7 @@ from service.errors import InvalidParameterError
 
 _ENCODER_PARAMS = (
     "n_patterns", "periods", "rho", "gamma", "trainer", "C", "decode", "beam_width", "dtype",
-    "random_state", "code", "code_ratio", "temperature",
+    "random_state", "code", "code_ratio", "code_exponent", "temperature",
 )  # fmt: skip
 _FRONT_PARAMS = ("n_components", "whiten_power", "auto_width")  # the route's, not each chunk's
 
@@ -194,6 +194,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         random_state: int | None = 0,
         code: str = "mixed_radix",
         code_ratio: float = 1.0,
+        code_exponent: float = 1.0,
         n_components: int | None = None,
         whiten_power: float = 0.75,
         temperature: float | None = None,
@@ -215,6 +216,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.random_state = random_state
         self.code = code
         self.code_ratio = code_ratio
+        self.code_exponent = code_exponent
         self.n_components = n_components
         self.whiten_power = whiten_power
         self.temperature = temperature

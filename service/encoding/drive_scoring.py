@@ -136,7 +136,10 @@ class CodeScorer:
         if full is not None:
             return full[cls]  # type: ignore[no-any-return]
         dg = self.digits[j]
-        out = dg.weight[cls] @ prep.z[j]
+        if dg.rowscale is not None:  # int8 weights with a scale per class
+            out = (dg.weight[cls].astype(np.float32) @ prep.z[j]) * dg.rowscale[cls]
+        else:
+            out = dg.weight[cls] @ prep.z[j]
         out = out.astype(np.float64) + dg.bias[cls]
         return out * dg.beta if dg.beta != 1.0 else out  # type: ignore[no-any-return]
 
@@ -144,7 +147,7 @@ class CodeScorer:
         full = prep.full[j]
         if full is None:
             dg = self.digits[j]
-            full = (dg.weight @ prep.z[j]).astype(np.float64) + dg.bias
+            full = dg.products(prep.z[j][None, :])[0].astype(np.float64) + dg.bias
             if dg.beta != 1.0:
                 full *= dg.beta
             prep.full[j] = full

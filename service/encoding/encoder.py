@@ -49,7 +49,8 @@ class PhaseEncoder(PlaceRecognizer):
     n_jobs : threads solving the one-vs-rest problems of ``logreg``/``svm`` (-1 = all cores).
     code : ``mixed_radix`` (the paper's digits) or ``residue`` (``i mod τ_j``,
         :mod:`service.encoding.residue`).
-    code_ratio : ``Στ ≈ code_ratio·N`` of automatic residue periods.
+    code_ratio, code_exponent : ``Στ ≈ code_ratio·N^code_exponent`` of automatic residue
+        periods (an exponent below 1: a code that grows sub-linearly with the route).
     n_components : PCA components of the projection front-end (``None``: no projection,
         :mod:`service.encoding.projection`).
     whiten_power : whitening of the projection (component ``c`` divided by ``√λ_c^power``).
@@ -88,6 +89,7 @@ class PhaseEncoder(PlaceRecognizer):
         n_jobs: int = 1,
         code: str = "mixed_radix",
         code_ratio: float = 1.0,
+        code_exponent: float = 1.0,
         n_components: int | None = None,
         whiten_power: float = 0.75,
         temperature: float | None = None,
@@ -110,6 +112,7 @@ class PhaseEncoder(PlaceRecognizer):
         self.n_jobs = n_jobs
         self.code = code
         self.code_ratio = code_ratio
+        self.code_exponent = code_exponent
         self.n_components = n_components
         self.whiten_power = whiten_power
         self.temperature = temperature
@@ -138,6 +141,10 @@ class PhaseEncoder(PlaceRecognizer):
             raise InvalidParameterError(f"unknown code {self.code!r}; choose one of {CODES}")
         if not self.code_ratio > 0:
             raise InvalidParameterError(f"code_ratio must be > 0, got {self.code_ratio}")
+        if not 0.0 < self.code_exponent <= 1.0:
+            raise InvalidParameterError(
+                f"code_exponent must be in (0, 1], got {self.code_exponent}"
+            )
         if self.n_components is not None and int(self.n_components) < 1:
             raise InvalidParameterError(f"n_components must be >= 1, got {self.n_components}")
         if not 0.0 <= self.whiten_power <= 1.0:
@@ -218,7 +225,8 @@ class PhaseEncoder(PlaceRecognizer):
         if self.code == "residue":
             if self.periods is not None:
                 return validate_residue_periods(self.periods, n_frames)
-            return residue_periods(n_frames, int(self.n_patterns), float(self.code_ratio))
+            return residue_periods(n_frames, int(self.n_patterns), float(self.code_ratio),
+                                   float(self.code_exponent))  # fmt: skip
         if self.periods is not None:
             return validate_periods(self.periods, n_frames)
         return auto_periods(n_frames, int(self.n_patterns))

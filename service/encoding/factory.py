@@ -65,12 +65,14 @@ class ModelParams(BaseModel):
                      description="inverse regularisation strength")  # fmt: skip
     decode: Literal["joint", "argmax"] = "joint"
     beam_width: int = Field(64, ge=1, le=100_000)
-    dtype: Literal["float64", "float32", "float16", "int8"] = _DEFAULT.dtype
+    dtype: Literal["float64", "float32", "float16", "int8", "binary"] = _DEFAULT.dtype
     code: Literal["mixed_radix", "residue"] = Field(
         _DEFAULT.code, description="digit labels: mixed radix (the paper's) or i mod τ_j"
     )
     code_ratio: float = Field(_DEFAULT.code_ratio, gt=0.0, le=64.0, allow_inf_nan=False,
-                              description="sum of automatic residue periods / N")  # fmt: skip
+                              description="sum of automatic residue periods / N^code_exponent")  # fmt: skip
+    code_exponent: float = Field(_DEFAULT.code_exponent, gt=0.0, le=1.0, allow_inf_nan=False,
+                                 description="the code grows as N^code_exponent")  # fmt: skip
     n_components: int | None = Field(
         _DEFAULT.n_components, ge=1, le=65_536, description="PCA projection width (None: none)"
     )
@@ -142,6 +144,7 @@ def build_model(params: ModelParams) -> PhaseEncoder | ChunkedPlaceEncoder:
         random_state=params.random_state,
         code=params.code,
         code_ratio=params.code_ratio,
+        code_exponent=params.code_exponent,
         n_components=params.n_components,
         whiten_power=params.whiten_power,
         temperature=params.temperature,

@@ -34,6 +34,8 @@ class FrontEnd:
         if n_components is None:
             return cls(normalizer)
         Xn = _Normalised(X, normalizer)
+        if dtype == "binary":  # sign bits are for class templates; the projection keeps int8
+            dtype = "int8"
         return cls(normalizer, Projection.fit(Xn, int(n_components), whiten_power, dtype))
 
     @classmethod

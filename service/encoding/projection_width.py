@@ -51,6 +51,8 @@ class WidthChoice:
 def _linear_bytes(rows: int, cols: int, dtype: str) -> int:
     """A :class:`~service.encoding.quantization.QuantizedLinear` of ``rows × cols``: weights,
     biases, and for int8 a float32 scale and a float32 bias per row."""
+    if dtype == "binary":  # sign bits per row, a float32 width per column
+        return rows * math.ceil(cols / 8) + 4 * cols
     size = _ITEMSIZE[dtype]
     per_row = 8 if dtype == "int8" else size
     return rows * (cols * size + per_row)
@@ -60,7 +62,8 @@ def model_bytes(width: int, n_features: int, classes: Sequence[int], dtype: str)
     """Stored bytes of a normalised, projected model of ``width`` components whose digit
     classifiers have ``classes`` classes each, every one reading all ``width`` columns."""
     digits = sum(_linear_bytes(int(c), width, dtype) + math.ceil(width / 8) + 8 for c in classes)
-    return 8 * n_features + _linear_bytes(width, n_features, dtype) + digits
+    projection = "int8" if dtype == "binary" else dtype  # the projection of a binary model
+    return 8 * n_features + _linear_bytes(width, n_features, projection) + digits
 
 
 def choose_width(requested: int, n_places: int, n_rows: int, n_features: int,

@@ -1,4 +1,8 @@
-"""Storage dtypes for linear weights: float64, float32, float16, and int8 with per-row scale.
+"""Storage dtypes for linear weights: float64, float32, float16, int8 with per-row scale, and
+binary: one sign bit per weight with a per-column width shared by every class (``w_cj =
+±width_j``, no bias: every class template has the same norm, so a bias would be the same
+constant for all). Binary suits class templates that a drive's motion disambiguates: 16 bytes
+per class at 128 components.
 
 A model quantises its weights once, at the end of ``fit``, and from then on predicts with the
 dequantised values; saving and loading move the stored form unchanged, so a loaded model
@@ -14,8 +18,8 @@ import numpy as np
 
 from service.errors import InvalidParameterError
 
-StorageDtype = Literal["float64", "float32", "float16", "int8"]
-DTYPES: tuple[str, ...] = ("float64", "float32", "float16", "int8")
+StorageDtype = Literal["float64", "float32", "float16", "int8", "binary"]
+DTYPES: tuple[str, ...] = ("float64", "float32", "float16", "int8", "binary")
 
 
 def check_dtype(dtype: str) -> str:
@@ -31,11 +35,16 @@ class QuantizedLinear:
     weight: np.ndarray  # stored dtype (int8 for "int8")
     bias: np.ndarray  # float32 for "int8", else the stored dtype
     scale: np.ndarray | None = None  # float32 per row, "int8" only
+    width: np.ndarray | None = None  # float32 per column, "binary" only (weight: packed signs)
     _dense: list[np.ndarray] = field(default_factory=list, repr=False, compare=False)
 
     @classmethod
     def from_dense(cls, W: np.ndarray, b: np.ndarray, dtype: str) -> QuantizedLinear:
         check_dtype(dtype)
+        if dtype == "binary":
+            width = np.abs(W).mean(axis=0).astype(np.float32)
+            signs = np.packbits(np.asarray(W) > 0, axis=1)
+            return cls(weight=signs, bias=np.zeros(0, np.float32), width=width)
         if dtype == "int8":
             peak = np.abs(W).max(axis=1)
             scale = np.where(peak > 0, peak / 127.0, 1.0).astype(np.float32)
@@ -45,16 +54,30 @@ class QuantizedLinear:
 
     @property
     def dtype(self) -> str:
+        if self.width is not None:
+            return "binary"
         return "int8" if self.scale is not None else str(self.weight.dtype)
+
+    @property
+    def n_classes(self) -> int:
+        return int(self.weight.shape[0])
+
+    def dequantized(self) -> tuple[np.ndarray, np.ndarray]:
+        """Float64 weights ``(n_classes, d')`` and biases as the stored form defines them."""
+        if self.width is not None:
+            bits = np.unpackbits(self.weight, axis=1, count=self.width.size)
+            W = (2.0 * bits - 1.0) * self.width.astype(np.float64)[None, :]
+            return W, np.zeros(self.weight.shape[0])
+        W = self.weight.astype(np.float64)
+        if self.scale is not None:
+            W = W * self.scale.astype(np.float64)[:, None]
+        return W, self.bias.astype(np.float64)
 
     @property
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """Float64 weights and biases used for scoring (computed once)."""
         if not self._dense:
-            W = self.weight.astype(np.float64)
-            if self.scale is not None:
-                W = W * self.scale.astype(np.float64)[:, None]
-            self._dense.extend([W, self.bias.astype(np.float64)])
+            self._dense.extend(self.dequantized())
         return self._dense[0], self._dense[1]
 
     def scores(self, X: np.ndarray) -> np.ndarray:
@@ -63,13 +86,15 @@ class QuantizedLinear:
 
     @property
     def nbytes(self) -> int:
-        extra = 0 if self.scale is None else self.scale.nbytes
+        extra = sum(a.nbytes for a in (self.scale, self.width) if a is not None)
         return int(self.weight.nbytes + self.bias.nbytes + extra)
 
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
         out = {f"{prefix}.weight": self.weight, f"{prefix}.bias": self.bias}
         if self.scale is not None:
             out[f"{prefix}.scale"] = self.scale
+        if self.width is not None:
+            out[f"{prefix}.width"] = self.width
         return out
 
     @classmethod
@@ -78,6 +103,7 @@ class QuantizedLinear:
             weight=arrays[f"{prefix}.weight"],
             bias=arrays[f"{prefix}.bias"],
             scale=arrays.get(f"{prefix}.scale"),
+            width=arrays.get(f"{prefix}.width"),
         )
 
 

@@ -64,9 +64,21 @@ def alias_gap(periods: Sequence[int], n_frames: int) -> int:
     return best
 
 
-def residue_periods(n_frames: int, n_patterns: int, ratio: float = 1.0) -> tuple[int, ...]:
-    """``n_patterns`` distinct periods with ``Στ ≈ ratio·N`` and ``lcm ≥ N`` whose aliases
-    lie farthest apart (:func:`alias_gap`); ties go to the smaller sum. Deterministic."""
+def code_sum(n_frames: int, ratio: float = 1.0, exponent: float = 1.0) -> int:
+    """The target ``Στ = ratio·N^exponent`` (at most ``N`` when ``exponent < 1``: a code that
+    grows sub-linearly never has more classes than frames)."""
+    total = ratio * float(n_frames) ** exponent
+    if exponent < 1.0:
+        total = min(total, float(n_frames))
+    return int(round(total))
+
+
+def residue_periods(
+    n_frames: int, n_patterns: int, ratio: float = 1.0, exponent: float = 1.0
+) -> tuple[int, ...]:
+    """``n_patterns`` distinct periods with ``Στ ≈ ratio·N^exponent`` (:func:`code_sum`) and
+    ``lcm ≥ N`` whose aliases lie farthest apart (:func:`alias_gap`); ties go to the smaller
+    sum. Deterministic."""
     if n_frames < 2:
         raise InvalidParameterError(f"a route needs at least 2 frames, got {n_frames}")
     k = int(n_patterns)
@@ -83,7 +95,7 @@ def residue_periods(n_frames: int, n_patterns: int, ratio: float = 1.0) -> tuple
     if k == 1:
         return (max(2, n_frames),)
     floor = sum(range(2, 2 + k))  # the smallest sum of k distinct periods >= 2
-    total = max(floor, int(round(ratio * n_frames)))
+    total = max(floor, code_sum(n_frames, ratio, exponent))
     rng = np.random.default_rng(0)
     best: tuple[int, int, tuple[int, ...]] | None = None
     for t in range(_CANDIDATES):

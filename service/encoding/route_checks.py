@@ -40,7 +40,7 @@ def check_route(params: ModelParams, n_frames: int, n_features: int) -> None:
     if params.code == "residue":
         for size in {smallest, largest}:
             if params.periods is None:
-                residue_periods(size, params.n_patterns, params.code_ratio)
+                residue_periods(size, params.n_patterns, params.code_ratio, params.code_exponent)
             else:
                 validate_residue_periods(params.periods, size)
         return

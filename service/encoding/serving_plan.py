@@ -75,14 +75,16 @@ class DigitBlock:
         temperature = float(getattr(classifier, "temperature", None) or 1.0)
         beta = 1.0 / temperature
         columns = np.asarray(classifier.columns, dtype=np.int64)
-        bias = lin.bias.astype(np.float64)
+        bias = lin.bias.astype(np.float64) if lin.width is None else np.zeros(lin.n_classes)
         if lin.scale is not None and lin.weight.size * 4 > FLOAT32_COPY_BYTES:
             norm = int8_max_row_norm(lin.weight, lin.scale)
             return cls(columns, lin.weight, bias, lin, beta,
                        _kappa(lin.weight.shape[1]) * norm * 1.001 * beta,
                        rowscale=lin.scale.astype(np.float32))  # fmt: skip
         W = lin.weight
-        if lin.scale is not None:
+        if lin.width is not None:  # binary: the signs times the column widths
+            W = lin.dequantized()[0]
+        elif lin.scale is not None:
             W = W.astype(np.float64) * lin.scale.astype(np.float64)[:, None]
         W32 = np.ascontiguousarray(W, dtype=np.float32)
         norm = float(np.sqrt(np.einsum("ij,ij->i", W32, W32, dtype=np.float64)).max(initial=0.0))
@@ -118,10 +120,7 @@ class DigitBlock:
         return float64_cache.kept(self.kept64, self._make_dense64)
 
     def _make_dense64(self) -> tuple[np.ndarray, np.ndarray]:
-        W = self.linear.weight.astype(np.float64)
-        if self.linear.scale is not None:
-            W = W * self.linear.scale.astype(np.float64)[:, None]
-        return W, self.linear.bias.astype(np.float64)
+        return self.linear.dequantized()  # type: ignore[no-any-return]
 
     def log_probs64(self, Z64: np.ndarray) -> np.ndarray:
         return log_softmax_last(self.raw(Z64, "float64"))

@@ -21,9 +21,9 @@ MAX_PERIODS = 64  # explicit periods τ1…τk (a product beyond 2^63 frames is 
 MAX_PERIOD = 2**31 - 1
 MAX_SEED = 2**32 - 1  # numpy / scikit-learn seeds
 Trainer = Literal["logreg", "svm", "ridge", "torch", "prototype"]
-EncoderPreset = Literal["paper", "ridge", "robust", "residue"]  # service.encoding.presets
+EncoderPreset = Literal["paper", "ridge", "robust", "residue", "drive"]  # service.encoding.presets
 DecodeMode = Literal["joint", "argmax"]
-StorageDtype = Literal["float64", "float32", "float16", "int8"]
+StorageDtype = Literal["float64", "float32", "float16", "int8", "binary"]
 ExtractorKind = Literal["patchnorm", "hog", "cnn"]
 Period = Annotated[int, Field(ge=2, le=MAX_PERIOD)]
 EXTRACTOR_FIELDS = ("preset", "width", "height", "patch", "orientations", "pixels_per_cell",
