@@ -109,6 +109,11 @@ def test_odometry_reaches_the_filter_when_it_takes_some(monkeypatch: pytest.Monk
         protocols=("whole", "speed"), speed_drives=1, speed_frames=100), 0)
         for s, (lo, hi) in drive_bench.splits(300).items()}  # fmt: skip
     settings = drive_bench.DriveSettings(odometry_noise=(0.1,))
+
+    def without_odometry(scores: np.ndarray, config: SequenceConfig | None = None) -> SequenceTrack:
+        return filter_sequence(scores, config)
+
+    monkeypatch.setattr(drive_bench, "filter_sequence", without_odometry)
     plain = drive_bench.evaluate_all(S, drives, SequenceConfig(), settings)
     assert plain["B"]["odometry_0.1"] == {"available": False}
     monkeypatch.setattr(drive_bench, "filter_sequence", with_odometry)
