@@ -35,7 +35,12 @@ import numpy as np
 
 from service.core.traversal_upload import UploadedFile, read_places
 from service.core.uploads import parse_route
-from service.errors import DimensionMismatchError, InvalidInputError, PayloadTooLargeError
+from service.errors import (
+    DimensionMismatchError,
+    InvalidInputError,
+    PayloadTooLargeError,
+    RetrainRequiredError,
+)
 from service.imaging import make_extractor, parse_extractor_config
 from service.registry.models import VersionInfo
 from service.wire.appends import AppendOptions
@@ -92,9 +97,16 @@ def append_traversals(
         )  # fmt: skip
     conditions = _validation(model, base, arrays, index, tags)
     start = time.perf_counter()
-    model.partial_fit(arrays if len(arrays) > 1 else arrays[0],
-                      places=(index if len(index) > 1 else index[0]) if index else None,
-                      extend=options.extend, whiten=options.whiten)  # fmt: skip
+    try:
+        model.partial_fit(arrays if len(arrays) > 1 else arrays[0],
+                          places=(index if len(index) > 1 else index[0]) if index else None,
+                          extend=options.extend, whiten=options.whiten)  # fmt: skip
+    except RetrainRequiredError as exc:
+        raise RetrainRequiredError(
+            f"{exc.message}: upload every traversal of the extended route as a new route "
+            f"(POST /v1/maps/{name}/routes, one 'file' and 'places' per traversal), which "
+            "trains it as a job", **exc.details,
+        ) from exc
     seconds = time.perf_counter() - start
     record = _lineage(base, arrays, index, tags)
     extra = {"appended_to": version, "traversals": record["traversals"], "append": {

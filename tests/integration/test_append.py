@@ -253,3 +253,29 @@ def test_kill_9_during_appends_leaves_no_partial_version(tmp_path: Path, route) 
         print("kill -9 after (s), versions listed, the request's outcome:", outcomes)
     finally:
         srv.stop()
+
+
+def test_an_extension_the_periods_cannot_label_needs_a_retrain(tmp_path: Path) -> None:
+    """A two-digit code whose periods (7, 9) tell 63 places apart cannot take places beyond."""
+    from service.registry import Registry
+
+    R = smooth_route(60, D, seed=5).reference
+    srv = ServerProcess(tmp_path / "periods", env=ENV).start()
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60) as c:
+            r = c.post("/v1/maps/res/routes", headers=AUTH, files={"file": ("r.npy", _npy(R))},
+                       data={"encoder_preset": "residue", "periods": "7,9"})  # fmt: skip
+            assert r.status_code == 202, r.text
+            assert _wait_job(c, r.json()["id"])["state"] == "succeeded"
+            more = smooth_route(80, D, seed=6).reference[60:72]
+            ok = _append(c, "res", 1, more[:3], np.arange(60, 63), extend="true")
+            assert ok.status_code == 201, ok.text
+            assert ok.json()["n_frames"] == 63
+            refused = _append(c, "res", 1, more, np.arange(60, 72), extend="true")
+            assert refused.status_code == 409, refused.text
+            body = refused.json()
+            assert body["error"] == "retrain_required" and "full retrain" in body["message"]
+            assert "/v1/maps/res/routes" in body["message"]
+        assert [v.version for v in Registry(srv.data_dir).list_versions("res")] == [1, 2]
+    finally:
+        srv.stop()
