@@ -221,9 +221,11 @@ def bench_append(
 
 
 from service.cli.bench_drive import bench_drive
+from service.cli.bench_drive_scaling import bench_drive_scaling
 from service.cli.bench_paper import bench_paper
 from service.cli.bench_quality import bench_quality
 
 app.command("paper")(bench_paper)
 app.command("quality")(bench_quality)
 app.command("drive")(bench_drive)
+app.command("drive-scaling")(bench_drive_scaling)

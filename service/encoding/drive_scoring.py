@@ -125,6 +125,11 @@ class CodeScorer:
             for lab, o, dg in zip(self.labels, self.order, self.digits, strict=True)
         ]
 
+    @property
+    def check_cost(self) -> int:
+        """Class scores one global check (:meth:`candidates`) computes: ``Στ``."""
+        return int(sum(dg.n_classes for dg in self.digits))
+
     def prepare_many(self, Q: np.ndarray) -> list[Any]:
         Z = self.plan.normalise(np.asarray(Q, dtype=np.float64), np.float32)
         zs = [Z.take(dg.columns, axis=1) for dg in self.digits]
@@ -157,7 +162,7 @@ class CodeScorer:
         out = np.zeros(len(idx))
         for j in range(len(self.digits)):
             lab = self.labels[j, idx]
-            if prep.full[j] is None and lab.size < self.digits[j].n_classes // 2:
+            if prep.full[j] is None:  # only the classes asked for: O(window), not O(Στ)
                 uniq, inv = np.unique(lab, return_inverse=True)
                 out += self._classes(prep, j, uniq)[inv]
             else:

@@ -39,9 +39,10 @@ from service.encoding.sequence import (
 from service.encoding.sequence_config import SequenceConfig
 
 MAX_WINDOWS = 16
-PROBATION = 16  # frames a candidate window stays open, at least
+PROBATION = 8  # frames a candidate window stays open, at least
 REPLAY = 8  # a new window is opened with the evidence of this many earlier frames
 LOST = 0.5  # outside mass beyond which the tracker goes back to the whole route
+CHECK_CLASSES = 2048  # class scores per frame a code's global checks may cost, amortised
 EVIDENCE_MEMORY = 0.2  # weight of the newest frame in the running evidence ratio
 EVIDENCE_LOST = 0.0  # a running log evidence ratio at or below this: the windows lost the vehicle
 _FLAT = 1e-10
@@ -58,6 +59,10 @@ class DriveTracker:
         self.speeds = self.motion.speeds
         self.width = 2 * self.config.track_radius + 1
         self.windowed_allowed = self.config.tracking and self.n_frames >= 4 * self.width
+        # a code's global check scores all Στ classes: spread it so its amortised cost is
+        # bounded (a lost vehicle is caught by the evidence test every frame meanwhile)
+        cost = int(getattr(scorer, "check_cost", 0))
+        self.check_interval = max(self.config.check_every, -(-cost // CHECK_CLASSES))
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -109,7 +114,14 @@ class DriveTracker:
         return mask
 
     def _n_outside(self) -> int:
-        return self.n_frames - int(self._covered().sum())
+        """Frames outside every window (the union of the windows' intervals, ``O(B log B)``)."""
+        covered, end = 0, -1
+        for lo in sorted(self.lo.tolist()):
+            hi = lo + self.width
+            if hi > end:
+                covered += hi - max(lo, end)
+                end = hi
+        return self.n_frames - covered
 
     # -- update ----------------------------------------------------------------------
     def update(self, prep: Any, odometry: float | None = None) -> SequenceEstimate:
@@ -181,7 +193,7 @@ class DriveTracker:
         self.outside = self.outside * (1.0 - eps) + float(left[interior].sum())
         pred += np.float32(eps / (S * N))  # the uniform jump, on the windows …
         self.outside += eps * n_out / N  # … and outside them
-        if self.frames % cfg.check_every == 0:
+        if self.frames % self.check_interval == 0:
             pred = self._open_candidates(prep, pred, n_out, recent)
         B = pred.shape[1]
         idx = (self.lo[:, None] + np.arange(W)[None, :]).ravel()

@@ -1,0 +1,144 @@
+"""``gridplace bench drive-scaling``: the ``drive`` preset on SYNTHETIC routes of growing length.
+
+For each route length N (default 10k, 100k, 1M frames of a SYNTHETIC smooth random-process
+route, :func:`service.encoding.synthetic.write_route`, labelled so in every output): fit the
+``drive`` preset, then drive it — several drives from random starts at variable speed (0.5–2
+reference frames per query frame, changing smoothly) whose query frames are the reference plus
+fresh noise — through the windowed tracker (:class:`~service.encoding.tracking.DriveTracker`)
+and the whole-route filter (``tracking=False``, today's cost). It reports per N: the code's
+bytes (class templates) and the whole map's, the drive precision within ±5 frames, the single
+frames' precision, and the per-frame cost of each filter (CPU time per update; the tracker's
+over frames it spent in windows mode), and fits ``bytes ≈ c·N^a`` over the lengths.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.encoding.drive_scoring import drive_scorer
+from service.encoding.factory import ModelParams, build_model
+from service.encoding.sequence import SequenceConfig, SequenceFilter
+from service.encoding.synthetic import SYNTHETIC_LABEL, route_queries, write_route
+from service.encoding.tracking import DriveTracker
+
+SIZES = (10_000, 100_000, 1_000_000)
+
+
+@dataclass(frozen=True)
+class ScalingOptions:
+    sizes: tuple[int, ...] = SIZES
+    n_features: int = 128
+    query_noise: float = 0.6
+    drives: int = 8
+    drive_length: int = 300
+    whole_frames: int = 30  # frames timed through the whole-route filter (O(S·N) each)
+    preset: str = "drive"
+    seed: int = 0
+
+
+def speed_profile(n: int, rng: np.random.Generator) -> np.ndarray:
+    """A smoothly varying speed in [0.5, 2] reference frames per query frame."""
+    phase, period = rng.uniform(0, 2 * np.pi), rng.uniform(40, 160)
+    return 1.25 + 0.75 * np.sin(phase + 2 * np.pi * np.arange(n) / period)
+
+
+def _drive_rows(n_frames: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    speed = speed_profile(length, rng)
+    span = float(speed.sum()) + 2
+    start = rng.uniform(0, max(1.0, n_frames - span))
+    return np.minimum(np.rint(start + np.cumsum(speed) - speed[0]).astype(np.int64), n_frames - 1)
+
+
+def _fit_power(x: list[float], y: list[float]) -> dict[str, float]:
+    lx, ly = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    a, logc = np.polyfit(lx, ly, 1)
+    return {"exponent": float(a), "prefactor": float(math.exp(logc))}
+
+
+def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
+    """One route length: fit, bytes, drives through both filters."""
+    ref = write_route(workdir / f"route-{n}.npy", n, opts.n_features, seed=opts.seed)
+    t0 = time.process_time()
+    wall0 = time.perf_counter()
+    model = build_model(ModelParams(encoder_preset=opts.preset)).fit(ref)
+    fit_cpu, fit_wall = time.process_time() - t0, time.perf_counter() - wall0
+    fp = model.footprint().to_dict()
+    code_bytes = int(fp["components"]["encoders"]["actual_bytes"])
+    scorer = drive_scorer(model)
+    config = SequenceConfig()
+    rng = np.random.default_rng([opts.seed, n])
+    hits, singles, track_us, frames_windowed, frames_total = [], [], [], 0, 0
+    for d in range(opts.drives):
+        rows = _drive_rows(n, opts.drive_length, rng)
+        Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + d)
+        preps = scorer.prepare_many(Q)
+        singles.append(np.abs(model.localize(Q).index - rows) <= 5)
+        tracker = DriveTracker(scorer, config)
+        est = np.empty(rows.size, dtype=np.int64)
+        for t, prep in enumerate(preps):
+            windowed = tracker.mode == "windows"
+            c0 = time.process_time_ns()
+            est[t] = tracker.update(prep).index
+            dt = time.process_time_ns() - c0
+            if windowed:
+                track_us.append(dt / 1e3)
+                frames_windowed += 1
+            frames_total += 1
+        hits.append(np.abs(est - rows) <= 5)
+    # the whole-route filter's cost per frame (a few frames of the first drive's scores)
+    rows = _drive_rows(n, opts.whole_frames, rng)
+    Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 999)
+    preps = scorer.prepare_many(Q)
+    whole = SequenceFilter(n, config)
+    whole_us = []
+    for prep in preps:
+        c0 = time.process_time_ns()
+        whole.update(scorer.full(prep))
+        whole_us.append((time.process_time_ns() - c0) / 1e3)
+    return {
+        "n_frames": n,
+        "periods": [int(p) for p in getattr(model, "periods_", ())],
+        "code_bytes": code_bytes,
+        "map_bytes": int(fp["actual_bytes"]),
+        "fit_cpu_s": fit_cpu,
+        "fit_wall_s": fit_wall,
+        "drive_precision": float(np.concatenate(hits).mean()),
+        "single_frame_precision": float(np.concatenate(singles).mean()),
+        "tracking_us_per_frame": float(np.median(track_us)) if track_us else None,
+        "tracking_us_mean": float(np.mean(track_us)) if track_us else None,
+        "windowed_share": frames_windowed / max(1, frames_total),
+        "whole_filter_us_per_frame": float(np.median(whole_us)),
+        "states": int(whole.speeds.size),
+    }
+
+
+def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict[str, Any]:
+    """Every size of ``opts`` (see the module doc); SYNTHETIC routes, written under
+    ``workdir`` (a temporary folder by default) and removed afterwards."""
+    results = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        for n in opts.sizes:
+            results.append(measure_size(n, opts, Path(tmp)))
+            (Path(tmp) / f"route-{n}.npy").unlink(missing_ok=True)
+    sizes = [r["n_frames"] for r in results]
+    out: dict[str, Any] = {
+        "data": SYNTHETIC_LABEL,
+        "options": opts.__dict__ | {"sizes": list(opts.sizes)},
+        "filter": SequenceConfig().model_dump(),
+        "sizes": results,
+    }
+    if len(sizes) >= 2:
+        out["code_bytes_fit"] = _fit_power(sizes, [r["code_bytes"] for r in results])
+        out["map_bytes_fit"] = _fit_power(sizes, [r["map_bytes"] for r in results])
+        first, last = results[0], results[-1]
+        if first["tracking_us_per_frame"] and last["tracking_us_per_frame"]:
+            out["tracking_cost_ratio"] = last["tracking_us_per_frame"] / first["tracking_us_per_frame"]
+        out["whole_cost_ratio"] = last["whole_filter_us_per_frame"] / first["whole_filter_us_per_frame"]
+    return out
