@@ -17,6 +17,7 @@ import pytest
 
 from service.api.process import ServerProcess, free_port
 from service.encoding import ModelParams, build_model
+from service.encoding.sequence import SequenceConfig
 from service.encoding.synthetic import smooth_route
 from service.grpc.gen import localization_pb2 as pb
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
@@ -24,7 +25,7 @@ from service.registry import Registry
 
 N, D = 20_000, 32
 MAX_STREAMS, STATE_MB = 3, 160
-FILTER_BYTES = 7 * N * 4  # one vehicle's posterior: 7 speeds × N frames of float32
+FILTER_BYTES = SequenceConfig().n_states * N * 4  # one vehicle's whole-route posterior, float32
 PARAMS = {"encoder_preset": "ridge", "trainer": "ridge", "n_patterns": "2"}
 
 
