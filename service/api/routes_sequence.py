@@ -137,13 +137,15 @@ def _localize_drive(
         blobs = [
             (f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)
         ]
-        return localizer.localize_images(req.map, blobs, config, adapt, req.odometry)
+        return localizer.localize_images(req.map, blobs, config, adapt, req.odometry,
+                                         req.odometry_m)  # fmt: skip
     if req.descriptors_b64 is not None:
         data = _b64(req.descriptors_b64, "descriptors_b64")
-        return localizer.localize_bytes(req.map, data, None, config, adapt, req.odometry)
+        return localizer.localize_bytes(req.map, data, None, config, adapt, req.odometry,
+                                        req.odometry_m)  # fmt: skip
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")
     if len({len(row) for row in req.descriptors}) != 1:
         raise InvalidInputError("descriptors rows have different lengths")
-    return localizer.localize(req.map, req.descriptors, config, adapt, req.odometry)
+    return localizer.localize(req.map, req.descriptors, config, adapt, req.odometry, req.odometry_m)

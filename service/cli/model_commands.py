@@ -35,10 +35,11 @@ from service.encoding.adaptation import AdaptationConfig, adapt_drive, adapts
 from service.encoding.evaluation import evaluate as evaluate_model
 from service.encoding.phases import parse_periods
 from service.encoding.presets import DEFAULT_PRESET, describe_presets
-from service.encoding.sequence import SequenceConfig, check_odometry, sequence_localize
+from service.cli.odometry_options import OdometryOpt, SpacingOpt, odometry_for
+from service.encoding.sequence import SequenceConfig, sequence_localize
 from service.encoding.traversals import as_traversals
 from service.encoding.validation import check_descriptors
-from service.errors import InvalidInputError, InvalidParameterError
+from service.errors import InvalidParameterError
 
 console = cli_console()
 
@@ -142,44 +143,6 @@ FilterOpt = Annotated[
 ]  # fmt: skip
 
 
-OdometryOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--odometry", metavar="FILE",
-        help="with --sequence: the vehicle's displacement since the previous row, in reference "
-             "frames (signed), one per query row: a float .npy, or text with one number per "
-             "line (an empty line: no odometry for that row)",
-    ),
-]  # fmt: skip
-
-
-def load_odometry(path: Path, n: int) -> np.ndarray:
-    """Per-row displacements from ``path`` (NaN: a row without), checked for ``n`` rows."""
-    if path.suffix == ".npy":
-        values = np.asarray(load_npy(path), dtype=np.float64)
-        if np.isnan(values).any():
-            raise InvalidInputError(f"{path} contains NaN (leave a text file's line empty for a "
-                                    "row without odometry)")  # fmt: skip
-        return check_odometry(values, n)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise InvalidInputError(f"cannot read odometry file {path}: {exc.strerror}") from exc
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{path} is not a text file of numbers (or a .npy)") from None
-    rows: list[float | None] = []
-    for i, line in enumerate(lines, 1):
-        text = line.strip()
-        if not text:
-            rows.append(None)
-            continue
-        try:
-            rows.append(float(text))
-        except ValueError:
-            raise InvalidInputError(f"{path} line {i}: {text!r} is not a number") from None
-    return check_odometry(rows, n)
-
-
 AdaptOpt = Annotated[
     bool | None,
     typer.Option(
@@ -218,6 +181,7 @@ def localize(
     filter_params: FilterOpt = None,
     adapt: AdaptOpt = None,
     odometry: OdometryOpt = None,
+    odometry_spacing: SpacingOpt = None,
 ) -> None:
     """Predict the frame index of every query row (with --sequence: the filtered estimates)."""
     if filter_params and not sequence:
@@ -231,7 +195,7 @@ def localize(
     if adaptation is not None:
         Q = adapt_drive(model, Q, adaptation)
     if config is not None:
-        u = None if odometry is None else load_odometry(odometry, Q.shape[0])
+        u = odometry_for(odometry, Q.shape[0], odometry_spacing)
         track = sequence_localize(model, Q, config, odometry=u)
         index, confidence = track.index, track.confidence
     else:
@@ -257,6 +221,7 @@ def evaluate(
     filter_params: FilterOpt = None,
     adapt: AdaptOpt = None,
     odometry: OdometryOpt = None,
+    odometry_spacing: SpacingOpt = None,
 ) -> None:
     """Precision within a tolerance, query time and storage of a saved model (with --sequence
     also the sequence filter's precision, the query file being one drive in row order)."""
@@ -268,7 +233,7 @@ def evaluate(
     model = load_model(model_dir)
     truth = load_npy(ground_truth) if ground_truth is not None else None
     Q = check_descriptors(load_npy(queries), n_features=model.n_features_in_, what=str(queries))
-    u = None if odometry is None else load_odometry(odometry, Q.shape[0])
+    u = odometry_for(odometry, Q.shape[0], odometry_spacing)
     result = evaluate_model(model, Q, truth, tolerance, sequence=config,
                             adaptation=adaptation_for(model, adapt), odometry=u)  # fmt: skip
     if as_json:

@@ -22,8 +22,13 @@ from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
 from service.encoding import check_descriptors
 from service.encoding.adaptation import adapt_drive, adapts
-from service.encoding.sequence import SequenceConfig, check_odometry, sequence_localize
-from service.errors import EmptyInputError, InvalidInputError
+from service.encoding.sequence import (
+    SequenceConfig,
+    check_odometry,
+    odometry_in_frames,
+    sequence_localize,
+)
+from service.errors import ConflictError, EmptyInputError, InvalidInputError
 
 MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
 MAX_SEQUENCE_WORK = 2_000_000_000  # query frames × route frames per request (filter time)
@@ -58,6 +63,18 @@ def chunk_of(loaded: LoadedModel, index: np.ndarray | int) -> np.ndarray:
     return np.searchsorted(np.asarray(bounds), idx, side="right").astype(np.int64) - 1
 
 
+def frame_spacing(loaded: LoadedModel) -> float:
+    """The metres between the map's frames recorded at upload (``frame_spacing_m``); a map
+    without one cannot take odometry in metres."""
+    spacing = loaded.info.params.get("frame_spacing_m")
+    if spacing is None:
+        raise ConflictError(
+            f"map {loaded.map!r} version {loaded.version} records no frame spacing: send "
+            "odometry in reference frames, or upload the route with frame_spacing_m"
+        )
+    return float(spacing)
+
+
 class SequenceLocalizer:
     """Localize ordered frames as one drive, through ``service`` (same validation, metrics and
     hot-swap semantics as ``/localize/batch``: one model version answers the whole drive)."""
@@ -65,25 +82,25 @@ class SequenceLocalizer:
     def __init__(self, service: LocalizationService) -> None:
         self.service = service
 
-    def localize(self, name: str, X: Any, config: SequenceConfig,
-                 adapt: bool | None = None, odometry: Any = None) -> SequenceResult:  # fmt: skip
+    def localize(self, name: str, X: Any, config: SequenceConfig, adapt: bool | None = None,
+                 odometry: Any = None, odometry_m: Any = None) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
-        return self.run(loaded, Q, config, start, "descriptor", adapt, odometry)
+        return self.run(loaded, Q, config, start, "descriptor", adapt, odometry, odometry_m)
 
     def localize_bytes(
         self, name: str, data: bytes, n_features: int | None, config: SequenceConfig,
-        adapt: bool | None = None, odometry: Any = None,
+        adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = self.service.query_bytes(loaded, data, n_features)
-        return self.run(loaded, Q, config, start, "binary", adapt, odometry)
+        return self.run(loaded, Q, config, start, "binary", adapt, odometry, odometry_m)
 
     def localize_images(
         self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig,
-        adapt: bool | None = None, odometry: Any = None,
+        adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         if not images:
@@ -92,7 +109,7 @@ class SequenceLocalizer:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.service.served(name)
         Q = self.service.query_images(loaded, images)
-        return self.run(loaded, Q, config, start, "image", adapt, odometry)
+        return self.run(loaded, Q, config, start, "image", adapt, odometry, odometry_m)
 
     def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
         """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
@@ -102,11 +119,16 @@ class SequenceLocalizer:
 
     def run(
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,
-        adapt: bool | None = None, odometry: Any = None,
+        adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
     ) -> SequenceResult:  # fmt: skip
         """Filter validated queries ``Q`` (rows in driving order) on ``loaded``, with the
-        vehicle's per-frame ``odometry`` (reference frames; ``None`` entries: frames without)."""
+        vehicle's per-frame ``odometry`` (reference frames) or ``odometry_m`` (metres, with the
+        map's recorded frame spacing); ``None`` entries: frames without."""
         u = None if odometry is None else check_odometry(odometry, Q.shape[0])
+        if odometry_m is not None:
+            if u is not None:
+                raise InvalidInputError("send odometry in frames or in metres, not both")
+            u = odometry_in_frames(odometry_m, Q.shape[0], frame_spacing(loaded))
         limit = min(MAX_SEQUENCE_FRAMES, max(1, MAX_SEQUENCE_WORK // loaded.n_frames))
         if Q.shape[0] > limit:
             raise InvalidInputError(

@@ -45,7 +45,7 @@ import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
-from service.core.sequences import chunk_of
+from service.core.sequences import chunk_of, frame_spacing
 from service.core.stream_budget import StreamLease
 from service.core.vehicle_state import VehicleState
 from service.encoding.adaptation import (
@@ -55,7 +55,7 @@ from service.encoding.adaptation import (
     route_statistics,
 )
 from service.encoding.drive_scoring import drive_scorer
-from service.encoding.sequence import SequenceConfig, check_odometry
+from service.encoding.sequence import SequenceConfig, check_odometry, odometry_in_frames
 from service.encoding.tracking import DriveTracker
 from service.errors import (
     DimensionMismatchError,
@@ -86,6 +86,7 @@ class Frame:
     reset: bool = False
     adapt: bool | None = None  # appearance adaptation; None: the stream's default
     odometry: float | None = None  # displacement since the previous frame, reference frames
+    odometry_m: float | None = None  # the same in metres (the map's frame spacing converts it)
 
 
 @dataclass(slots=True)
@@ -232,8 +233,12 @@ class FleetStream:
     def _track(self, frame: Frame, loaded: LoadedModel, Q: np.ndarray) -> tuple[int, float, int]:
         """The vehicle's filtered estimate after ``Q``: index, confidence, frames used."""
         odometry = None
+        if frame.odometry is not None and frame.odometry_m is not None:
+            raise InvalidInputError("send odometry in frames or in metres, not both")
         if frame.odometry is not None:
             odometry = float(check_odometry([frame.odometry], 1)[0])
+        elif frame.odometry_m is not None:
+            odometry = float(odometry_in_frames([frame.odometry_m], 1, frame_spacing(loaded))[0])
         scorer = drive_scorer(loaded.model)
         track = self._filters.current(
             frame.vehicle_id, loaded, lambda: DriveTracker(scorer, self.config),

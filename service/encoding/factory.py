@@ -99,6 +99,11 @@ class ModelParams(BaseModel):
         1, ge=-1, description="parallel chunk processes, or one-vs-rest threads without chunks"
     )
     random_state: int | None = Field(0, ge=0, le=2**32 - 1, description="seed of the trainers")
+    frame_spacing_m: float | None = Field(
+        None, gt=0.0, le=10_000.0, allow_inf_nan=False,
+        description="metres between consecutive reference frames (recorded with the version: "
+        "odometry in metres is divided by it)",
+    )  # fmt: skip
 
     @model_validator(mode="before")
     @classmethod

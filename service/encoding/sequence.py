@@ -220,6 +220,18 @@ def check_odometry(odometry: Any, n: int) -> np.ndarray:
     return _check_values(u, n, missing)
 
 
+def odometry_in_frames(odometry_m: Any, n: int, spacing_m: Any) -> np.ndarray:
+    """Displacements in metres (as :func:`check_odometry` takes them) in reference frames of a
+    route whose frames lie ``spacing_m`` metres apart (finite and > 0, else refused)."""
+    try:
+        spacing = float(spacing_m)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"frame spacing must be a number of metres, got {spacing_m!r}") from None
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise InvalidInputError(f"frame spacing must be a positive number of metres, got {spacing}")
+    return check_odometry(check_odometry(odometry_m, n) / spacing, n)
+
+
 def _check_values(u: np.ndarray, n: int, missing: np.ndarray) -> np.ndarray:
     if u.ndim != 1 or u.shape[0] != n:
         raise InvalidInputError(f"expected {n} odometry values, one per frame, got shape {u.shape}")

@@ -51,6 +51,7 @@ def frame(request: pb.StreamRequest) -> Frame:
         reset=request.reset_sequence,
         adapt=_ADAPT.get(request.adaptation),
         odometry=request.odometry if request.HasField("odometry") else None,
+        odometry_m=request.odometry_m if request.HasField("odometry_m") else None,
     )
 
 

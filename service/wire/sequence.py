@@ -95,6 +95,10 @@ class SequenceLocalizeRequest(BatchLocalizeRequest):
         "the previous frame, in reference frames (signed; null for a frame without): the "
         "filter's motion model centres on it. One entry per frame",
     )  # fmt: skip
+    odometry_m: list[float | None] | None = Field(
+        None, description="as odometry, in metres: divided by the map's frame spacing recorded "
+        "at upload (frame_spacing_m; 409 when the map has none)",
+    )  # fmt: skip
     adaptation: bool | None = Field(
         None, description="standardise each frame by the running statistics of the drive's "
         "earlier frames first (appearance adaptation); unset: the server's default "

@@ -60,6 +60,11 @@ class TrainingOptions(Request):
     chunk_rho: float | None = Field(None, gt=0.0, le=1.0)
     top_chunks: int | None = Field(None, ge=1, le=100_000)
     random_state: int | None = Field(None, ge=0, le=MAX_SEED)
+    frame_spacing_m: float | None = Field(
+        None, gt=0.0, le=10_000.0, allow_inf_nan=False,
+        description="metres between consecutive frames of the route, recorded with the version: "
+        "vehicles may then send odometry in metres",
+    )  # fmt: skip
     extractor: ExtractorKind | None = Field(None, description="image archives: how frames "
                                             "become descriptors (default cnn)")  # fmt: skip
     preset: str | None = Field(None, min_length=1, max_length=100,

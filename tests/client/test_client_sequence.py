@@ -221,3 +221,29 @@ def test_odometry_per_row_reaches_the_filter_and_bad_odometry_is_a_4xx(
                      + str(Q[:3].tolist()).encode() + b', "odometry": [1, NaN, 1]}',
                      headers={"Content-Type": "application/json"})  # fmt: skip
         assert 400 <= r.status_code < 500, r.text
+
+
+def test_odometry_in_metres_uses_the_spacing_recorded_at_upload(
+    gp: GridplaceClient, synth: Job, route: Route, data_dir: Path
+) -> None:
+    from client_helpers import wait_serving
+
+    job = gp.upload_route("spaced", route[0], trainer="ridge", frame_spacing_m=2.0)
+    done = gp.wait_for_job(job.id, timeout=90, poll_interval=0.05)
+    assert done.version is not None
+    wait_serving(gp, "spaced", done.version)
+    assert gp.get_map("spaced").active.params["frame_spacing_m"] == 2.0  # type: ignore[union-attr]
+    Q = route[1][20:80]
+    with httpx.Client(base_url=gp.base_url, timeout=60) as raw:
+        body = {"map": "spaced", "descriptors": Q.tolist(), "adaptation": False}
+        in_m = raw.post("/v1/localize/sequence", json={**body, "odometry_m": [2.0] * 60})
+        in_frames = raw.post("/v1/localize/sequence", json={**body, "odometry": [1.0] * 60})
+        assert in_m.status_code == 200 and in_m.json()["index"] == in_frames.json()["index"]
+        both = raw.post("/v1/localize/sequence",
+                        json={**body, "odometry": [1.0] * 60, "odometry_m": [2.0] * 60})  # fmt: skip
+        assert both.status_code == 400 and "not both" in both.text
+        unspaced = raw.post("/v1/localize/sequence",
+                            json={**body, "map": "synth", "odometry_m": [2.0] * 60})  # fmt: skip
+        assert unspaced.status_code == 409 and "frame spacing" in unspaced.text
+    with pytest.raises(InvalidParameterError, match="frame_spacing_m"):
+        gp.upload_route("spaced", route[0], trainer="ridge", frame_spacing_m=-1.0)

@@ -219,3 +219,13 @@ def test_odometry_per_frame_moves_the_vehicle_and_bad_odometry_is_refused(served
     assert hit > 0.9 and hit > blind + 0.1, (hit, blind)
     assert [r.error.status for r in with_odo[len(rows):]] == ["INVALID_ARGUMENT"] * 3
     assert "odometry" in with_odo[len(rows)].error.message
+
+
+def test_odometry_in_metres_needs_the_maps_frame_spacing(served: Served) -> None:
+    req = pb.StreamRequest(vehicle_id="metres", sequence=1, map="route", sequence_filter=True,
+                           descriptor=f32(served.query[5]), odometry_m=2.0)  # fmt: skip
+    both = pb.StreamRequest(vehicle_id="metres", sequence=2, map="route", sequence_filter=True,
+                            descriptor=f32(served.query[6]), odometry=1.0, odometry_m=2.0)  # fmt: skip
+    (got,) = run(served, [req, both])
+    assert got[0].error.status == "FAILED_PRECONDITION" and "frame spacing" in got[0].error.message
+    assert got[1].error.status == "INVALID_ARGUMENT" and "not both" in got[1].error.message

@@ -213,3 +213,24 @@ def test_a_model_without_route_statistics_is_evaluated_unadapted(files: dict[str
     assert code == 0 and json.loads(stdout)["adaptation"] is None
     code, _, stderr = invoke("evaluate", bare, files["root"] / "q16.npy", "--adapt")
     assert code == 2 and "statistics" in stderr
+
+
+def test_odometry_in_metres_is_divided_by_the_spacing(files: dict[str, Path]) -> None:
+    Q = np.load(files["query"])
+    n = Q.shape[0]
+    metres = files["root"] / "odo-m.npy"
+    np.save(metres, np.full(n, 2.5))
+    pred = files["root"] / "odo-m-pred.npy"
+    code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence", "--no-adapt",
+                             "--odometry", metres, "--odometry-spacing", "2.5", "--out", pred)  # fmt: skip
+    assert code == 0, stderr
+    model = load_model(files["model"])
+    want = sequence_localize(model, Q, SequenceConfig(), odometry=np.ones(n)).index
+    np.testing.assert_array_equal(np.load(pred), want)
+    for spacing, needle in (("-1", "positive"), ("0", "positive")):
+        code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence",
+                                 "--odometry", metres, "--odometry-spacing", spacing)  # fmt: skip
+        assert code == 2 and needle in stderr, stderr
+    code, _, stderr = invoke("localize", files["model"], files["query"], "--sequence",
+                             "--odometry-spacing", "2")  # fmt: skip
+    assert code == 2 and "needs --odometry" in stderr

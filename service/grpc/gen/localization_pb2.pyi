@@ -54,7 +54,7 @@ class LocalizeResponse(_message.Message):
     def __init__(self, map: _Optional[str] = ..., version: _Optional[int] = ..., matches: _Optional[_Iterable[_Union[Match, _Mapping]]] = ..., latency_ms: _Optional[float] = ...) -> None: ...
 
 class StreamRequest(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation", "odometry")
+    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation", "odometry", "odometry_m")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -64,6 +64,7 @@ class StreamRequest(_message.Message):
     RESET_SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     ADAPTATION_FIELD_NUMBER: _ClassVar[int]
     ODOMETRY_FIELD_NUMBER: _ClassVar[int]
+    ODOMETRY_M_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -73,7 +74,8 @@ class StreamRequest(_message.Message):
     reset_sequence: bool
     adaptation: Adaptation
     odometry: float
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ..., adaptation: _Optional[_Union[Adaptation, str]] = ..., odometry: _Optional[float] = ...) -> None: ...
+    odometry_m: float
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ..., adaptation: _Optional[_Union[Adaptation, str]] = ..., odometry: _Optional[float] = ..., odometry_m: _Optional[float] = ...) -> None: ...
 
 class Error(_message.Message):
     __slots__ = ("code", "status", "message")
