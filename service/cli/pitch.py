@@ -29,11 +29,14 @@ FIGURES = {
     "exact_nn_single": 41.4,  # cli-defaults: exact_nn single_p5
     "nn_pca256_single": 43.5,  # quality.json: lite0-b4, cross, nn-pca256, all, single ±5
     "robust_adapted": 53.4,  # cli-defaults-adapted: gridplace adapted single_p5
-    "robust_drive": 99.2,  # cli-defaults: gridplace sequence_p5
+    "robust_drive": 99.4,  # cli-drive: robust sequence_precision (this filter's defaults)
     "robust_storage_pct": 3.1,  # cli-defaults: ratios storage_vs_exact_nn
     "paper_single": 1.9,  # quality.json: lite0-b4, cross, paper, all, single ±5
     "residue_single": 23.9,  # quality.json: lite0-b4, cross, residue, all, single ±5
     "residue_drive": 99.0,  # quality.json: lite0-b4, cross, residue, all, sequence ±5
+    "drive_single": 12.1,  # cli-drive: drive_as_sent precision
+    "drive_drive": 99.3,  # cli-drive: drive sequence_precision
+    "drive_code_pct": 4.6,  # cli-drive: ratios drive_code_bytes_vs_robust
 }
 
 _WHAT_SHIPS = (
@@ -53,7 +56,11 @@ _WHAT_SHIPS = (
 _CHOOSING = (
     f"Choosing: `{DESCRIBED_DEFAULT}` for maps queried in other conditions (the default); "
     f"`residue` for half its bytes at about half its single-frame precision "
-    f"({FIGURES['residue_single']} %; as a drive {FIGURES['residue_drive']} %); `paper` / "
+    f"({FIGURES['residue_single']} %; as a drive {FIGURES['residue_drive']} %); `drive` for "
+    "fleets and streams on long routes: a code that grows as the square root of the route "
+    f"({FIGURES['drive_code_pct']} % of `robust`'s class bytes here), whose single frames alias "
+    f"({FIGURES['drive_single']} %) but whose drives the sequence filter localises "
+    f"({FIGURES['drive_drive']} %); `paper` / "
     "`ridge` to reproduce the paper; `--budget-bytes` or `--target-precision` to choose on "
     "validation queries. Details: docs/RESULTS.md."
 )

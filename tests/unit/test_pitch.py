@@ -40,7 +40,7 @@ def test_the_readme_opens_with_what_ships() -> None:
     top = flat(readme[: readme.index("## Two commands on a fresh machine")])
     assert flat(SUMMARY) in top
     assert f"**`{DEFAULT_PRESET}`** (default)" in top and "linearly" in top
-    assert "`drive`" in top  # the place the drive preset's figures go
+    assert "`drive`" in top and f"{FIGURES['drive_drive']}" in top  # the drive preset's row
     for key in ("robust_single", "exact_nn_single", "nn_pca256_single", "robust_adapted",
                 "robust_drive", "robust_storage_pct", "paper_single"):  # fmt: skip
         assert f"{FIGURES[key]}" in top, key
@@ -68,7 +68,11 @@ def test_the_figures_are_the_measured_ones() -> None:
 
     assert FIGURES["robust_single"] == pct(cli["gridplace"]["single_p5"])
     assert FIGURES["exact_nn_single"] == pct(cli["exact_nn"]["single_p5"])
-    assert FIGURES["robust_drive"] == pct(cli["gridplace"]["sequence_p5"])
+    drive = json.loads((BENCH / "cli-drive-nordland-2026-12-02.json").read_text())
+    assert FIGURES["robust_drive"] == pct(drive["robust"]["sequence_precision"])
+    assert FIGURES["drive_drive"] == pct(drive["drive"]["sequence_precision"])
+    assert FIGURES["drive_single"] == pct(drive["drive_as_sent"]["precision"])
+    assert FIGURES["drive_code_pct"] == pct(drive["ratios"]["drive_code_bytes_vs_robust"])
     assert FIGURES["robust_storage_pct"] == pct(cli["ratios"]["storage_vs_exact_nn"])
     assert FIGURES["robust_adapted"] == pct(adapted["gridplace"]["adapted"]["single_p5"])
     assert FIGURES["nn_pca256_single"] == pct(cross["nn-pca256"]["single"]["5"])
