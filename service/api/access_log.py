@@ -1,9 +1,11 @@
 """Keep credentials out of the access log.
 
-uvicorn logs every request line with its query string. A caller may put a token there (it is
-refused: the admin API reads only ``Authorization``), so the line would store a secret in the
-log. This filter drops the query string of every admin path and masks credential-like
-parameters (``token``, ``access_token``, ``api_key``…) on all others.
+uvicorn logs every request line with its query string. A caller may put a token there under
+any name (it is refused: the admin API reads only ``Authorization``), so the line would store
+a secret in the log. This filter drops the query string of every admin path and, on all
+others, logs only the parameters of an allow-list (those the public API documents: the map,
+the descriptor size, adaptation and the sequence filter's options) with their values; every
+other parameter is logged as ``***``, name and value.
 """
 
 from __future__ import annotations
@@ -11,10 +13,11 @@ from __future__ import annotations
 import logging
 from urllib.parse import parse_qsl, urlencode
 
+from service.wire import SequenceFilterOptions
+
 ACCESS_LOGGER = "uvicorn.access"
-SECRET_PARAMS = frozenset({"token", "access_token", "id_token", "refresh_token", "api_key",
-                           "apikey", "key", "secret", "password", "auth", "authorization",
-                           "bearer", "session", "signature", "sig"})  # fmt: skip
+LOGGED_PARAMS = frozenset({"map", "d", "adaptation", *SequenceFilterOptions.model_fields})
+HIDDEN = "***"
 
 
 def scrub_path(path: str, admin_prefixes: tuple[str, ...]) -> str:
@@ -25,8 +28,8 @@ def scrub_path(path: str, admin_prefixes: tuple[str, ...]) -> str:
     if base.startswith(admin_prefixes):
         return base
     pairs = parse_qsl(query, keep_blank_values=True)
-    masked = [(k, "***" if k.lower() in SECRET_PARAMS else v) for k, v in pairs]
-    return f"{base}?{urlencode(masked, safe='*')}"
+    shown = [urlencode([(k, v)]) if k in LOGGED_PARAMS else HIDDEN for k, v in pairs]
+    return f"{base}?{'&'.join(shown)}" if shown else base
 
 
 class CredentialFilter(logging.Filter):
