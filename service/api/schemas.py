@@ -57,6 +57,27 @@ def component(model: type[Any]) -> dict[str, Any]:
     return model.model_json_schema(ref_template="#/components/schemas/{model}")  # type: ignore[no-any-return]
 
 
+def inline_schema(model: type[Any]) -> dict[str, Any]:
+    """``model``'s JSON schema with the models it nests written in place: a body declared in
+    ``openapi_extra`` does not add its ``$defs`` to ``#/components/schemas``, so a reference
+    there would not resolve (and fuzzers would skip the field)."""
+    schema = model.model_json_schema(ref_template="#/$defs/{model}")
+    defs = schema.pop("$defs", {})
+
+    def resolve(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                rest = {k: resolve(v) for k, v in node.items() if k != "$ref"}
+                return {**resolve(defs[ref.removeprefix("#/$defs/")]), **rest}
+            return {k: resolve(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [resolve(v) for v in node]
+        return node
+
+    return resolve(schema)  # type: ignore[no-any-return]
+
+
 def _form_property(schema: dict[str, Any]) -> dict[str, Any]:
     """A form field's schema: form fields are never null (an absent field is the default)."""
     out = {k: v for k, v in schema.items() if k not in ("anyOf", "default")}
@@ -101,7 +122,7 @@ def body_doc(json_model: type[Any] | None, multipart: dict[str, Any] | None = No
     """``openapi_extra`` declaring a request body read by hand, per content type."""
     content: dict[str, Any] = {}
     if json_model is not None:
-        content["application/json"] = {"schema": component(json_model)}
+        content["application/json"] = {"schema": inline_schema(json_model)}
     if multipart is not None:
         content["multipart/form-data"] = {"schema": multipart}
     if binary is not None:

@@ -193,8 +193,11 @@ class FleetStream:
         validated ``(1, d)`` query and the vehicle's adapter when the frame is adapted (not
         applied yet: the caller transforms the query, or many frames' with
         :func:`~service.encoding.adaptation.transform_rows`); raises for a bad frame."""
-        if len(frame.vehicle_id) > MAX_VEHICLE_ID:
-            raise InvalidInputError(f"vehicle_id is longer than {MAX_VEHICLE_ID} characters")
+        if not frame.vehicle_id or len(frame.vehicle_id) > MAX_VEHICLE_ID:  # as REST's
+            raise InvalidInputError(
+                f"vehicle_id must name the vehicle in 1 to {MAX_VEHICLE_ID} characters, got "
+                f"{len(frame.vehicle_id)}", vehicle_id_length=len(frame.vehicle_id),
+            )  # fmt: skip
         loaded = self.service.served(frame.map)
         adapted = self._adapts(frame, loaded)
         Q = self._query(loaded, frame, np.float32 if adapted else np.float64)  # float32: adapted so

@@ -12,6 +12,18 @@ MAX_VERSION = 2**63 - 1  # versions are SQLite INTEGERs
 MapName = Annotated[str, Field(pattern=MAP_NAME_PATTERN, description="map (route) name",
                                examples=["nordland"])]  # fmt: skip
 VersionNumber = Annotated[int, Field(ge=1, le=MAX_VERSION, description="a map version (1, 2, …)")]
+
+
+def not_a_boolean(value: Any) -> Any:
+    """A ``mode="before"`` validator of a number field that may also come as text (query
+    strings): pydantic's lax mode would read JSON ``true`` as 1."""
+    if isinstance(value, bool):
+        raise ValueError("a boolean is not a number")
+    return value
+
+
+# a descriptor value in a JSON body: a number, never true/false or a string
+DescriptorValue = Annotated[float, Field(strict=True)]
 JobState = Literal["queued", "running", "succeeded", "failed"]
 JOB_STATES: tuple[str, ...] = ("queued", "running", "succeeded", "failed")
 TERMINAL_STATES: frozenset[str] = frozenset({"succeeded", "failed"})

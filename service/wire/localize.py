@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, ConfigDict, Field, model_validator
 
-from service.wire.base import Answer, MapName, Request, exactly_one_of, given
+from service.wire.base import Answer, DescriptorValue, MapName, Request, exactly_one_of, given
 
 _B64 = "[A-Za-z0-9+/]"
 BASE64_PATTERN = rf"^(?:{_B64}{{4}})*(?:{_B64}{{2}}==|{_B64}{{3}}=)?$"
@@ -80,7 +80,7 @@ class LocalizeRequest(VehicleOptions):
     model_config = ConfigDict(json_schema_extra=exactly_one_of(*QUERY_FIELDS))
 
     map: MapName
-    descriptor: list[float] | None = Field(None, min_length=1, description="d floats")
+    descriptor: list[DescriptorValue] | None = Field(None, min_length=1, description="d floats")
     descriptor_b64: Float32Base64 | None = Field(None, description="base64 of d little-endian float32")
     image_b64: Base64 | None = Field(None, description="base64 of an encoded image (PNG, JPEG…)")
 
@@ -96,7 +96,7 @@ class BatchLocalizeRequest(Request):
     model_config = ConfigDict(json_schema_extra=exactly_one_of(*BATCH_FIELDS))
 
     map: MapName
-    descriptors: list[list[float]] | None = Field(None, min_length=1,
+    descriptors: list[list[DescriptorValue]] | None = Field(None, min_length=1,
                                                   description="n rows of d floats")  # fmt: skip
     descriptors_b64: Float32Base64 | None = Field(None,
                                                   description="base64 of n·d little-endian float32")  # fmt: skip

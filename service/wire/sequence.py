@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, field_validator
 
-from service.wire.base import Answer, Request
+from service.wire.base import Answer, Request, not_a_boolean
 from service.wire.localize import BatchLocalizeRequest
 
 EmissionMode = Literal["zscore", "raw"]
@@ -79,6 +79,12 @@ class SequenceFilterOptions(Request):
     candidates: int | None = Field(
         None, ge=1, le=16, description="places a global check may open windows at"
     )
+
+    _numbers = field_validator(
+        "min_speed", "max_speed", "speed_step", "speed_change", "direction_change",
+        "stop_probability", "start_probability", "relocalization", "emission_scale",
+        "confidence_radius", mode="before",
+    )(not_a_boolean)  # fmt: skip
 
     def given(self) -> dict[str, Any]:
         """The options that were set (the rest take the server's defaults)."""

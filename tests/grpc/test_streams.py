@@ -82,8 +82,10 @@ def test_bad_frames_raise_the_hierarchy_and_leave_the_history(ctx: tuple[Service
     context, Q = ctx
     stream = FleetStream(context.service)
     stream.answer(frame(Q, 5, sequence_filter=True))
-    with pytest.raises(InvalidInputError, match="longer"):
+    with pytest.raises(InvalidInputError, match="1 to 128 characters, got 200"):
         stream.answer(frame(Q, 6, "x" * 200))
+    with pytest.raises(InvalidInputError, match="1 to 128 characters, got 0"):
+        stream.answer(frame(Q, 6, ""))
     with pytest.raises(InvalidInputError, match="not both"):
         stream.answer(Frame("v", 7, "chunked", descriptor=b"\0" * 4 * D, image=b"png"))
     with pytest.raises(DimensionMismatchError, match="one descriptor"):
