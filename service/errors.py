@@ -139,6 +139,15 @@ class PayloadTooLargeError(InvalidInputError):
     grpc_status = "RESOURCE_EXHAUSTED"
 
 
+class CancelledError(GridplaceError):
+    """The caller went away before its answer, and its work was stopped (nginx's 499: no one
+    reads the answer)."""
+
+    code = "cancelled"
+    http_status = 499
+    grpc_status = "CANCELLED"
+
+
 class UnauthorizedError(GridplaceError):
     code = "unauthorized"
     http_status = 401

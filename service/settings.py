@@ -40,6 +40,12 @@ class Settings(BaseSettings):
         256.0, gt=0, description="most image pixels one request (or stream frame) may make the "
         "server decode, summed over its images (millions)",
     )  # fmt: skip
+    max_request_work: float = Field(
+        1000.0, gt=0, le=1e9, description="most work one public request may cost, in "
+        "millions of units (one unit: one route frame's update in one state of the sequence "
+        "filter, about 4 ns; a batch costs rows × N × 8, a drive frames × N × (filter states + "
+        "8), an image 3 per pixel + 2 million); beyond: 413 before the work starts",
+    )  # fmt: skip
     max_stream_frame_kb: int = Field(
         1024, ge=1, description="largest gRPC LocalizeStream message (KiB)"
     )

@@ -10,13 +10,15 @@ object or as query parameters (any body); each has a validated range and a measu
 
 from __future__ import annotations
 
+import functools
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Request
-from starlette.concurrency import run_in_threadpool
 
+from service.api.cancellation import run_until_disconnected
 from service.api.routes_localize import _b64, _form, _json_body, _service, binary_map
 from service.api.schemas import ERRORS, IMAGES_FORM, DimParam, MapParam, body_doc
+from service.core.request_work import Cancellation
 from service.core.sequences import SequenceLocalizer, SequenceResult
 from service.encoding.sequence import SequenceConfig
 from service.errors import EmptyInputError, InvalidInputError
@@ -106,13 +108,13 @@ async def localize_sequence(
         name = binary_map(map_q, map_h, "sequences")
         body = await request.body()
         config = _config(query)
-        result = await run_in_threadpool(localizer.localize_bytes, name, body, d_q or d_h, config,
-                                         adaptation)  # fmt: skip
+        result = await run_until_disconnected(request, lambda c: localizer.localize_bytes(
+            name, body, d_q or d_h, config, adaptation, cancellation=c))  # fmt: skip
     elif ctype.startswith("multipart/form-data"):
         name, images, _ = await _form(request)
         config = _config(query)
-        result = await run_in_threadpool(localizer.localize_images, name, images, config,
-                                         adaptation)  # fmt: skip
+        result = await run_until_disconnected(request, lambda c: localizer.localize_images(
+            name, images, config, adaptation, cancellation=c))  # fmt: skip
     else:
         req = SequenceLocalizeRequest.model_validate_json(await _json_body(request))
         if req.filter is not None and query:
@@ -125,27 +127,29 @@ async def localize_sequence(
             )
         config = _config(req.filter if req.filter is not None else query)
         adapt = req.adaptation if req.adaptation is not None else adaptation
-        result = await run_in_threadpool(_localize_drive, localizer, req, config, adapt)
+        result = await run_until_disconnected(
+            request, functools.partial(_localize_drive, localizer, req, config, adapt))
     return sequence_localization(result)
 
 
 def _localize_drive(
     localizer: SequenceLocalizer, req: SequenceLocalizeRequest, config: SequenceConfig,
-    adapt: bool | None,
+    adapt: bool | None, cancellation: Cancellation,
 ) -> SequenceResult:  # fmt: skip
     if req.images_b64 is not None:
         blobs = [
             (f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)
         ]
         return localizer.localize_images(req.map, blobs, config, adapt, req.odometry,
-                                         req.odometry_m)  # fmt: skip
+                                         req.odometry_m, cancellation=cancellation)  # fmt: skip
     if req.descriptors_b64 is not None:
         data = _b64(req.descriptors_b64, "descriptors_b64")
         return localizer.localize_bytes(req.map, data, None, config, adapt, req.odometry,
-                                        req.odometry_m)  # fmt: skip
+                                        req.odometry_m, cancellation=cancellation)  # fmt: skip
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")
     if len({len(row) for row in req.descriptors}) != 1:
         raise InvalidInputError("descriptors rows have different lengths")
-    return localizer.localize(req.map, req.descriptors, config, adapt, req.odometry, req.odometry_m)
+    return localizer.localize(req.map, req.descriptors, config, adapt, req.odometry,
+                              req.odometry_m, cancellation=cancellation)  # fmt: skip

@@ -147,7 +147,9 @@ class MicroBatcher:
 
         def prepare() -> tuple[LoadedModel, np.ndarray, None]:
             loaded = svc.served(name)
-            return loaded, check_descriptors(X, n_features=loaded.n_features, what="descriptors"), None
+            Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
+            svc.check_work(loaded, Q.shape[0])
+            return loaded, Q, None
 
         return await self._submit(prepare, kind)  # type: ignore[no-any-return]
 

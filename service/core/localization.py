@@ -15,6 +15,7 @@ import numpy as np
 
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import LoadedModel, ModelStore
+from service.core.request_work import check_request
 from service.core.traversal_upload import UploadedFile, parse_traversals, store_traversals
 from service.encoding import ModelParams, check_descriptors, check_route
 from service.errors import (
@@ -134,6 +135,7 @@ class LocalizationService:
         start = time.perf_counter()
         loaded = self.served(name)  # one reference for the whole request: hot-swap safe
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
+        self.check_work(loaded, Q.shape[0])
         return self._answer(loaded, Q, start, input_kind)
 
     def localize_bytes(self, name: str, data: bytes, n_features: int | None = None) -> LocalizeResult:
@@ -152,6 +154,7 @@ class LocalizationService:
                 f"expects d={loaded.n_features}", expected=loaded.n_features, got=n_features,
             )  # fmt: skip
         X = decode_float32(data, loaded.n_features)  # (n, d) of d = n_features: shape holds
+        self.check_work(loaded, X.shape[0])
         if np.isfinite(X).all():  # finite as float32 ⇔ finite as float64: nothing else to check
             return X.astype(dtype)
         return check_descriptors(X, n_features=loaded.n_features, what="descriptors")  # raises
@@ -166,8 +169,17 @@ class LocalizationService:
         loaded = self.served(name)
         return self._answer(loaded, self.query_images(loaded, images), start, "image")
 
-    def query_images(self, loaded: LoadedModel, images: Sequence[tuple[str, bytes]]) -> np.ndarray:
-        """Validated ``(n, d)`` descriptors of encoded images with ``loaded``'s extractor."""
+    def check_work(self, loaded: LoadedModel, rows: int, states: int = 0, pixels: int = 0,
+                   images: int = 0, what: str = "the request") -> None:  # fmt: skip
+        """413 naming ``GRIDPLACE_MAX_REQUEST_WORK`` beyond the per-request work budget
+        (:func:`service.core.request_work.check_request`)."""
+        check_request(self.settings.max_request_work, loaded.n_frames, rows, states, pixels,
+                      images, what)  # fmt: skip
+
+    def query_images(self, loaded: LoadedModel, images: Sequence[tuple[str, bytes]],
+                     states: int = 0) -> np.ndarray:  # fmt: skip
+        """Validated ``(n, d)`` descriptors of encoded images with ``loaded``'s extractor (the
+        request's work checked first, with ``states`` filter states per row)."""
         extractor = loaded.extractor()
         if extractor is None:
             raise ConflictError(
@@ -175,13 +187,14 @@ class LocalizationService:
                 "without an image extractor; send descriptors, or train from images",
                 map=loaded.map, version=loaded.version,
             )  # fmt: skip
-        self._check_pixel_budget(images)
+        pixels = self._check_pixel_budget(images)
+        self.check_work(loaded, len(images), states, pixels, len(images))
         X = extract_blobs(extractor, images, len(images))  # decoded a small batch at a time
         return check_descriptors(X, n_features=loaded.n_features, what="image descriptors")
 
-    def _check_pixel_budget(self, images: Sequence[tuple[str, bytes]]) -> None:
-        """413 before any decoding when the images' headers add up to more pixels than one
-        request may make the server decode (``GRIDPLACE_MAX_REQUEST_MEGAPIXELS``)."""
+    def _check_pixel_budget(self, images: Sequence[tuple[str, bytes]]) -> int:
+        """The pixels the images' headers declare; 413 before any decoding when they add up to
+        more than one request may make the server decode (``GRIDPLACE_MAX_REQUEST_MEGAPIXELS``)."""
         budget = int(self.settings.max_request_megapixels * 1_000_000)
         total = 0
         for count, (label, data) in enumerate(images, 1):
@@ -193,6 +206,7 @@ class LocalizationService:
                     f"GRIDPLACE_MAX_REQUEST_MEGAPIXELS={self.settings.max_request_megapixels:g}",
                     limit_pixels=budget,
                 )  # fmt: skip
+        return total
 
     def answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
         """Localize validated queries on ``loaded`` and record the metrics (``start``: the

@@ -20,6 +20,7 @@ import numpy as np
 
 from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
+from service.core.request_work import Cancellation, cancellable
 from service.encoding import check_descriptors
 from service.encoding.adaptation import adapt_drive, adapts
 from service.encoding.sequence import (
@@ -31,7 +32,6 @@ from service.encoding.sequence import (
 from service.errors import ConflictError, EmptyInputError, InvalidInputError
 
 MAX_SEQUENCE_FRAMES = 100_000  # query frames of one drive per request
-MAX_SEQUENCE_WORK = 2_000_000_000  # query frames × route frames per request (filter time)
 
 
 @dataclass(frozen=True)
@@ -83,24 +83,29 @@ class SequenceLocalizer:
         self.service = service
 
     def localize(self, name: str, X: Any, config: SequenceConfig, adapt: bool | None = None,
-                 odometry: Any = None, odometry_m: Any = None) -> SequenceResult:  # fmt: skip
+                 odometry: Any = None, odometry_m: Any = None,
+                 cancellation: Cancellation | None = None) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
-        return self.run(loaded, Q, config, start, "descriptor", adapt, odometry, odometry_m)
+        return self.run(loaded, Q, config, start, "descriptor", adapt, odometry, odometry_m,
+                        cancellation)  # fmt: skip
 
     def localize_bytes(
         self, name: str, data: bytes, n_features: int | None, config: SequenceConfig,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
+        cancellation: Cancellation | None = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = self.service.query_bytes(loaded, data, n_features)
-        return self.run(loaded, Q, config, start, "binary", adapt, odometry, odometry_m)
+        return self.run(loaded, Q, config, start, "binary", adapt, odometry, odometry_m,
+                        cancellation)  # fmt: skip
 
     def localize_images(
         self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
+        cancellation: Cancellation | None = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         if not images:
@@ -108,8 +113,10 @@ class SequenceLocalizer:
         if len(images) > MAX_BATCH_IMAGES:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.service.served(name)
-        Q = self.service.query_images(loaded, images)
-        return self.run(loaded, Q, config, start, "image", adapt, odometry, odometry_m)
+        self._check_frames(loaded, len(images))
+        Q = self.service.query_images(loaded, images, states=config.n_states)  # work checked
+        return self.run(loaded, Q, config, start, "image", adapt, odometry, odometry_m,
+                        cancellation)  # fmt: skip
 
     def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
         """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
@@ -117,32 +124,38 @@ class SequenceLocalizer:
         return adapts(loaded.model, adapt, self.service.settings.drive_adaptation,
                       f"map {loaded.map!r} version {loaded.version}")  # fmt: skip
 
+    def _check_frames(self, loaded: LoadedModel, frames: int) -> None:
+        if frames > MAX_SEQUENCE_FRAMES:
+            raise InvalidInputError(
+                f"a drive holds at most {MAX_SEQUENCE_FRAMES} query frames per request, got "
+                f"{frames} (stream longer drives with gRPC LocalizeStream)",
+                limit=MAX_SEQUENCE_FRAMES, got=int(frames),
+            )  # fmt: skip
+
     def run(
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
+        cancellation: Cancellation | None = None,
     ) -> SequenceResult:  # fmt: skip
         """Filter validated queries ``Q`` (rows in driving order) on ``loaded``, with the
         vehicle's per-frame ``odometry`` (reference frames) or ``odometry_m`` (metres, with the
-        map's recorded frame spacing); ``None`` entries: frames without."""
+        map's recorded frame spacing); ``None`` entries: frames without. Refused beyond the
+        per-request work budget (frames × N × (S + 8)) before any work; ``cancellation``
+        stops the filter between blocks of frames."""
         u = None if odometry is None else check_odometry(odometry, Q.shape[0])
         if odometry_m is not None:
             if u is not None:
                 raise InvalidInputError("send odometry in frames or in metres, not both")
             u = odometry_in_frames(odometry_m, Q.shape[0], frame_spacing(loaded))
-        limit = min(MAX_SEQUENCE_FRAMES, max(1, MAX_SEQUENCE_WORK // loaded.n_frames))
-        if Q.shape[0] > limit:
-            raise InvalidInputError(
-                f"a drive on map {loaded.map!r} ({loaded.n_frames} frames) holds at most "
-                f"{limit} query frames per request, got {Q.shape[0]} (stream longer drives "
-                "with gRPC LocalizeStream)",
-                limit=limit,
-                got=int(Q.shape[0]),
-            )
+        self._check_frames(loaded, Q.shape[0])
+        what = f"a drive of {Q.shape[0]} frames on map {loaded.map!r}"
+        self.service.check_work(loaded, Q.shape[0], config.n_states, what=what)
         adapted = self.adapts(loaded, adapt)
         if adapted:
             Q = adapt_drive(loaded.model, Q, self.service.settings.adaptation())
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
-        track = sequence_localize(loaded.model, Q, config, odometry=u)
+        model, block = cancellable(loaded.model, cancellation, config.n_states, what)
+        track = sequence_localize(model, Q, config, block, odometry=u)
         return SequenceResult(
             loaded.map,
             loaded.version,

@@ -106,12 +106,11 @@ def test_openapi_documents_the_endpoint_and_every_filter_parameter(client: TestC
     }
 
 
-def test_a_drive_too_long_for_one_request_is_a_400_naming_the_limit(
-    client: TestClient, trained: str, route, monkeypatch
+def test_a_drive_beyond_the_work_budget_is_a_413_naming_it(
+    client: TestClient, trained: str, route, settings
 ) -> None:
-    from service.core import sequences
-
-    monkeypatch.setattr(sequences, "MAX_SEQUENCE_WORK", 120 * 50)  # N = 120: 50 frames a drive
+    # N = 120, default filter S = 7 states (+ 8: the frames' own scores): 50 frames a drive
+    settings.max_request_work = 120 * 50 * 15 / 1e6
     ok = client.post(
         "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:50].tolist()}
     )
@@ -119,8 +118,17 @@ def test_a_drive_too_long_for_one_request_is_a_400_naming_the_limit(
     r = client.post(
         "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:51].tolist()}
     )
-    assert r.status_code == 400 and r.json()["details"] == {"limit": 50, "got": 51}
-    assert "LocalizeStream" in r.json()["message"]
+    assert r.status_code == 413 and r.json()["details"] == {"work": 51 * 120 * 15, "budget": 90_000}
+    assert "GRIDPLACE_MAX_REQUEST_WORK" in r.json()["message"]
+    assert "51 frames × 120 map frames × (8 + 7 states)" in r.json()["message"]
+    wide = client.post("/v1/localize/sequence", json={  # 3 × 120 × (8 + 15) is within it
+        "map": trained, "descriptors": route[1][:3].tolist(),
+        "filter": {"min_speed": 0, "max_speed": 3.5, "speed_step": 0.25}})  # fmt: skip
+    assert wide.status_code == 200
+    wider = client.post("/v1/localize/sequence", json={  # 50 frames × 16 states are not
+        "map": trained, "descriptors": route[1][:50].tolist(),
+        "filter": {"min_speed": 0, "max_speed": 3.5, "speed_step": 0.25}})  # fmt: skip
+    assert wider.status_code == 413 and "(8 + 15 states)" in wider.json()["message"]
 
 
 def test_the_wire_options_carry_the_filters_bounds() -> None:
