@@ -40,6 +40,7 @@ from service.settings import Settings
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 BACKEND = "embedded"
+RECORD_RETRY_S = (0.5, 5.0)  # first and longest wait between tries of recording a failure
 
 
 class _JobTimeout(Exception):
@@ -58,6 +59,8 @@ class EmbeddedBackend:
         self._lock = threading.Lock()
         self._pool: ProcessPoolExecutor | None = None
         self._coordinators = ThreadPoolExecutor(self._workers, thread_name_prefix="gridplace-job")
+        self._active: set[str] = set()  # jobs of this process with a coordinator to come or running
+        self._jobs_lock = threading.Lock()  # a job is created and made active as one step
         self._closed = False
         self._reap_orphaned_jobs()
 
@@ -75,19 +78,25 @@ class EmbeddedBackend:
     ) -> JobInfo:
         if self._closed:
             raise UnavailableError("the training backend is shut down")
-        job, created = self._registry.create_job(
-            map_name, route=route, params=params.model_dump(mode="json"), extractor=extractor,
-            backend=BACKEND, idempotency_key=idempotency_key, owner=self._owner,
-            source=source, force=force,
-        )  # fmt: skip
-        if created:
-            self._coordinators.submit(self._run, job.id)
-        return job
+        for _ in range(2):  # a second time after failing a stuck job the first one returned
+            with self._jobs_lock:
+                job, created = self._registry.create_job(
+                    map_name, route=route, params=params.model_dump(mode="json"),
+                    extractor=extractor, backend=BACKEND, idempotency_key=idempotency_key,
+                    owner=self._owner, source=source, force=force,
+                )  # fmt: skip
+                if created:
+                    self._active.add(job.id)
+            if created:
+                self._coordinators.submit(self._run, job.id)
+                return job
+            if job.done or not self._reconcile(job.id):
+                return job
+        return self._registry.get_job(job.id)
 
     def get_job(self, job_id: str) -> JobInfo:
         job = self._registry.get_job(job_id)
-        if not job.done:
-            self._reap_if_orphaned(job_id, self._registry.get_job_spec(job_id).owner)
+        if not job.done and self._reconcile(job_id):
             job = self._registry.get_job(job_id)
         return job
 
@@ -117,6 +126,13 @@ class EmbeddedBackend:
 
     # -- coordination ---------------------------------------------------------------------
     def _run(self, job_id: str) -> None:
+        try:
+            self._coordinate(job_id)
+        finally:
+            with self._jobs_lock:
+                self._active.discard(job_id)
+
+    def _coordinate(self, job_id: str) -> None:
         deadline = time.monotonic() + self._settings.job_timeout_s
         try:
             params = ModelParams.parse(**self._registry.get_job_spec(job_id).params)
@@ -158,9 +174,35 @@ class EmbeddedBackend:
             return
         else:
             message = pipeline.describe(exc)
-        if self._registry.fail_job(job_id, message):
+        if self._record_failure(job_id, message):
             log.warning("training job %s failed: %s", job_id, message)
         Workspace(self._data_dir, job_id).remove()
+
+    def _record_failure(self, job_id: str, message: str) -> bool:
+        """``fail_job``, tried again while the registry is unreachable (the job failed, maybe
+        because the registry went away: it must not read ``running`` once the registry is
+        back). Gives up only when the backend shuts down."""
+        wait_s, logged = RECORD_RETRY_S[0], False
+        while True:
+            try:
+                recorded = self._registry.fail_job(job_id, message)
+            except UnavailableError as exc:
+                if self._closed:
+                    log.error("training job %s failed (%s); the registry is unreachable and "
+                              "the server is shutting down: not recorded", job_id, message)  # fmt: skip
+                    return False
+                if not logged:
+                    log.warning("training job %s failed (%s) but the registry is unreachable "
+                                "(%s): recording it when the registry is back", job_id,
+                                message, exc.message)  # fmt: skip
+                    logged = True
+                time.sleep(wait_s)
+                wait_s = min(RECORD_RETRY_S[1], 2 * wait_s)
+                continue
+            if logged:
+                log.warning("training job %s: its failure is recorded now that the registry "
+                            "is back", job_id)  # fmt: skip
+            return recorded
 
     def _submit(self, fn: Any, *args: Any) -> Future[Any]:
         """Submit a task to the pool, started on first use. Under the lock: a submit may spawn
@@ -185,21 +227,41 @@ class EmbeddedBackend:
             _terminate(pool)
 
     # -- jobs whose process is gone ---------------------------------------------------------
+    def _reconcile(self, job_id: str) -> bool:
+        """Fail an unfinished job that can no longer finish: its process is gone, or it is
+        this process's and no coordinator of it is left (one that ended without recording a
+        result). True when the job was failed here."""
+        owner = self._registry.get_job_spec(job_id).owner
+        if owner != self._owner:
+            return self._reap_if_orphaned(job_id, owner)
+        with self._jobs_lock:
+            if job_id in self._active or self._closed:
+                return False
+        failed = self._registry.fail_job(
+            job_id, "the job's coordinator ended without recording its result"
+        )
+        if failed:
+            log.warning("training job %s had no coordinator left: marked failed", job_id)
+            Workspace(self._data_dir, job_id).remove()
+        return failed
+
     def _reap_orphaned_jobs(self) -> None:
         for job_id, owner in self._registry.job_owners(BACKEND):
             self._reap_if_orphaned(job_id, owner)
 
-    def _reap_if_orphaned(self, job_id: str, owner: str | None) -> None:
-        """Fail a job whose owning process on this host no longer exists."""
+    def _reap_if_orphaned(self, job_id: str, owner: str | None) -> bool:
+        """Fail a job whose owning process on this host no longer exists (True if so)."""
         if owner is None or owner == self._owner:
-            return
+            return False
         host, _, pid = owner.rpartition(":")
         if host != socket.gethostname() or not pid.isdigit() or pid_exists(int(pid)):
-            return
+            return False
         if self._registry.fail_job(
             job_id, f"the server process {pid} that ran this job exited before it finished"
         ):
             Workspace(self._data_dir, job_id).remove()
+            return True
+        return False
 
 
 def _terminate(pool: ProcessPoolExecutor) -> None:

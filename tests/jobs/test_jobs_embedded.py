@@ -15,6 +15,7 @@ from service.encoding.synthetic import smooth_route
 from service.errors import NotFoundError
 from service.jobs import TrainingBackend, make_backend
 from service.jobs.embedded import EmbeddedBackend
+from service.registry import RouteSource
 from service.settings import Settings
 
 
@@ -156,3 +157,29 @@ def test_a_job_over_its_time_limit_fails_and_publishes_nothing(data_dir, registr
     assert registry.version_for_job(job.id) is None
     with pytest.raises(NotFoundError):
         registry.get_map("slow")
+
+
+def test_a_stuck_job_never_blocks_a_reupload(data_dir, registry, route_file, wait_done):
+    """A job of this process left open with no coordinator (one that ended without recording
+    its result) is failed when polled or when the same route comes again, which then trains."""
+    b = EmbeddedBackend(Settings(data_dir=data_dir, train_workers=1), registry)
+    try:
+        params = ModelParams.parse(trainer="ridge")
+        source = RouteSource(content_sha256="ab" * 32, n_frames=360, n_features=32)
+        stuck, created = registry.create_job(  # as if this backend had made it and lost it
+            "stuck", route=route_file, params=params.model_dump(mode="json"), extractor=None,
+            backend="embedded", owner=b._owner, source=source,
+        )  # fmt: skip
+        assert created and registry.get_job(stuck.id).state == "queued"
+        again = b.submit("stuck", route_file, params, None, None, source=source)
+        assert again.id != stuck.id and not again.reused
+        failed = registry.get_job(stuck.id)
+        assert failed.state == "failed" and "coordinator" in failed.error
+        assert wait_done(b, again.id).state == "succeeded"
+        lost, _ = registry.create_job(
+            "stuck", route=route_file, params={}, extractor=None, backend="embedded",
+            owner=b._owner,
+        )  # fmt: skip
+        assert b.get_job(lost.id).state == "failed"  # polling reconciles it too
+    finally:
+        b.close()
