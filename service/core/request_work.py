@@ -94,13 +94,34 @@ class Cancellation:
                                  f"{self.frames_done} frames")  # fmt: skip
 
 
+class _CancellableScorer:
+    """A drive scorer (the tracker's) whose blocks of prepared frames stop when the request is
+    cancelled; everything else is the model's own scorer."""
+
+    def __init__(self, scorer: Any, cancellation: Cancellation, what: str) -> None:
+        self._scorer, self._cancellation, self._what = scorer, cancellation, what
+
+    def prepare_many(self, Q: np.ndarray) -> Any:
+        self._cancellation.check(self._what)
+        prepared = self._scorer.prepare_many(Q)
+        self._cancellation.frames_done += int(Q.shape[0])
+        return prepared
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._scorer, name)
+
+
 class _CancellableModel:
-    """A model whose frame scores stop when the request is cancelled (the sequence filter asks
-    for them a block of frames at a time)."""
+    """A model whose frame scores (or, for the tracker, its drive scorer's prepared frames)
+    stop when the request is cancelled: the filter asks for them a block of frames at a time."""
 
     def __init__(self, model: Any, cancellation: Cancellation, what: str) -> None:
+        from service.encoding.drive_scoring import drive_scorer
+
         self._model, self._cancellation, self._what = model, cancellation, what
         self.n_frames_ = model.n_frames_
+        # drive_scorer(self) reads this entry: the tracker scores through the model's scorer
+        self.__dict__["_drive_scorer"] = _CancellableScorer(drive_scorer(model), cancellation, what)
 
     def frame_log_scores(self, Q: np.ndarray) -> np.ndarray:
         self._cancellation.check(self._what)

@@ -109,26 +109,29 @@ def test_openapi_documents_the_endpoint_and_every_filter_parameter(client: TestC
 def test_a_drive_beyond_the_work_budget_is_a_413_naming_it(
     client: TestClient, trained: str, route, settings
 ) -> None:
-    # N = 120, default filter S = 7 states (+ 8: the frames' own scores): 50 frames a drive
-    settings.max_request_work = 120 * 50 * 15 / 1e6
+    # N = 120, the default filter's S states (+ 8: the frames' own scores): 50 frames a drive
+    S = SequenceConfig().n_states
+    settings.max_request_work = 120 * 50 * (8 + S) / 1e6
     ok = client.post(
         "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:50].tolist()}
     )
-    assert ok.status_code == 200
+    assert ok.status_code == 200, ok.text
     r = client.post(
         "/v1/localize/sequence", json={"map": trained, "descriptors": route[1][:51].tolist()}
     )
-    assert r.status_code == 413 and r.json()["details"] == {"work": 51 * 120 * 15, "budget": 90_000}
+    budget = 120 * 50 * (8 + S)
+    assert r.status_code == 413 and r.json()["details"] == {"work": 51 * 120 * (8 + S), "budget": budget}
     assert "GRIDPLACE_MAX_REQUEST_WORK" in r.json()["message"]
-    assert "51 frames × 120 map frames × (8 + 7 states)" in r.json()["message"]
-    wide = client.post("/v1/localize/sequence", json={  # 3 × 120 × (8 + 15) is within it
-        "map": trained, "descriptors": route[1][:3].tolist(),
-        "filter": {"min_speed": 0, "max_speed": 3.5, "speed_step": 0.25}})  # fmt: skip
-    assert wide.status_code == 200
-    wider = client.post("/v1/localize/sequence", json={  # 50 frames × 16 states are not
-        "map": trained, "descriptors": route[1][:50].tolist(),
-        "filter": {"min_speed": 0, "max_speed": 3.5, "speed_step": 0.25}})  # fmt: skip
-    assert wider.status_code == 413 and "(8 + 15 states)" in wider.json()["message"]
+    assert f"51 frames × 120 map frames × (8 + {S} states)" in r.json()["message"]
+    grid = {"min_speed": 0, "max_speed": 3.5, "speed_step": 0.25}
+    wide_s = SequenceConfig(**grid).n_states
+    fits = budget // (120 * (8 + wide_s))
+    wide = client.post("/v1/localize/sequence", json={  # within the budget with the wider grid
+        "map": trained, "descriptors": route[1][:fits].tolist(), "filter": grid})  # fmt: skip
+    assert wide.status_code == 200, wide.text
+    wider = client.post("/v1/localize/sequence", json={  # one frame more is not
+        "map": trained, "descriptors": route[1][: fits + 1].tolist(), "filter": grid})  # fmt: skip
+    assert wider.status_code == 413 and f"(8 + {wide_s} states)" in wider.json()["message"]
 
 
 def test_the_wire_options_carry_the_filters_bounds() -> None:
