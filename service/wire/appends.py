@@ -12,7 +12,9 @@ from pydantic import Field
 from service.errors import InvalidInputError
 from service.wire.base import Request
 
-TAG_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}=[^\s=][^=]{0,199}$"
+# no \s: JSON Schema's (ECMAScript) and pydantic's (Rust) classes differ (U+0085), so a value
+# is any characters but '=' and the schema accepts exactly what the server does
+TAG_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}=[^=]{1,200}$"
 MAX_TAGS = 32
 _TAG = re.compile(TAG_PATTERN)
 Tag = Annotated[str, Field(pattern=TAG_PATTERN, description="a condition tag key=value",
