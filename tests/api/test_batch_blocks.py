@@ -21,4 +21,6 @@ def test_blockwise_answers_equal_one_call(client: TestClient, trained: str, rout
     body = r.json()
     assert body["n"] == len(Q) and body["index"] == want.index.tolist()
     assert body["chunk"] == want.chunk.tolist()
-    np.testing.assert_allclose(body["confidence"], want.confidence, rtol=1e-12)
+    # the same frames; confidences to float32 rounding (the fast path's products are float32,
+    # and BLAS sums a 64-row block and a 240-row call in different orders)
+    np.testing.assert_allclose(body["confidence"], want.confidence, rtol=1e-6)

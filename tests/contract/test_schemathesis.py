@@ -86,6 +86,8 @@ def test_the_server_keeps_its_schema(contract_server: ServerProcess) -> None:
                     failures.append(f"{operation.label}: no schema-valid request generated")
                 # else: the operation takes no input that could be schema-invalid
             except Exception as exc:  # every operation is run; the failures are reported together
+                if mode is GenerationMode.NEGATIVE and "Unsupported type" in str(exc):
+                    continue  # schemathesis cannot build a schema-invalid multipart binary body
                 failures.append(f"{operation.label} ({mode.value}): {exc}")
     assert not failures, "\n\n".join(failures)  # a 5xx fails its check (but /readyz's 503)
     assert operations >= 10, f"only {operations} operations in the schema"
