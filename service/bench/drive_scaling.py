@@ -8,7 +8,10 @@ fresh noise — through the windowed tracker (:class:`~service.encoding.tracking
 and the whole-route filter (``tracking=False``, today's cost). It reports per N: the code's
 bytes (class templates) and the whole map's, the drive precision within ±5 frames, the single
 frames' precision, and the per-frame cost of each filter (CPU time per update; the tracker's
-over frames it spent in windows mode), and fits ``bytes ≈ c·N^a`` over the lengths.
+over frames it spent in windows mode; and on drives started at their known first place,
+:meth:`~service.encoding.tracking.DriveTracker.start_at`, so that the tracker's cost is
+measured on every length even where the evidence does not concentrate the belief), and fits
+``bytes ≈ c·N^a`` over the lengths.
 """
 
 from __future__ import annotations
@@ -92,6 +95,21 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
                 frames_windowed += 1
             frames_total += 1
         hits.append(np.abs(est - rows) <= 5)
+    # the tracker's cost once it tracks, whatever the evidence: drives that start at a known
+    # place (start_at), every frame in windows mode
+    seeded_us, seeded_hits = [], []
+    for d in range(max(1, opts.drives // 2)):
+        rows = _drive_rows(n, opts.drive_length, rng)
+        Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 500 + d)
+        tracker = DriveTracker(scorer, config)
+        tracker.start_at(int(rows[0]))
+        for t, prep in enumerate(scorer.prepare_many(Q)):
+            windowed = tracker.mode == "windows"
+            c0 = time.process_time_ns()
+            index = tracker.update(prep).index
+            if windowed:
+                seeded_us.append((time.process_time_ns() - c0) / 1e3)
+            seeded_hits.append(abs(index - int(rows[t])) <= 5)
     # the whole-route filter's cost per frame (a few frames of the first drive's scores)
     rows = _drive_rows(n, opts.whole_frames, rng)
     Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 999)
@@ -114,6 +132,8 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
         "tracking_us_per_frame": float(np.median(track_us)) if track_us else None,
         "tracking_us_mean": float(np.mean(track_us)) if track_us else None,
         "windowed_share": frames_windowed / max(1, frames_total),
+        "seeded_tracking_us_per_frame": float(np.median(seeded_us)) if seeded_us else None,
+        "seeded_drive_precision": float(np.mean(seeded_hits)) if seeded_hits else None,
         "whole_filter_us_per_frame": float(np.median(whole_us)),
         "states": int(whole.speeds.size),
     }
@@ -140,5 +160,8 @@ def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict
         first, last = results[0], results[-1]
         if first["tracking_us_per_frame"] and last["tracking_us_per_frame"]:
             out["tracking_cost_ratio"] = last["tracking_us_per_frame"] / first["tracking_us_per_frame"]
+        if first["seeded_tracking_us_per_frame"] and last["seeded_tracking_us_per_frame"]:
+            out["seeded_tracking_cost_ratio"] = (last["seeded_tracking_us_per_frame"]
+                                                 / first["seeded_tracking_us_per_frame"])  # fmt: skip
         out["whole_cost_ratio"] = last["whole_filter_us_per_frame"] / first["whole_filter_us_per_frame"]
     return out

@@ -57,6 +57,14 @@ def bench_drive_scaling(
         if key in result:
             fit = result[key]
             console.print(f"{key.replace('_', ' ')}: {fit['prefactor']:.3g}·N^{fit['exponent']:.3f}")
+    for r in result["sizes"]:
+        if r["seeded_tracking_us_per_frame"] is not None:
+            console.print(f"N = {r['n_frames']:,}: tracking from a known start "
+                          f"{r['seeded_tracking_us_per_frame']:.0f} µs/frame, "
+                          f"{100 * r['seeded_drive_precision']:.1f} % within ±5")  # fmt: skip
+    if "seeded_tracking_cost_ratio" in result:
+        console.print(f"tracking from a known start, largest N / smallest: "
+                      f"{result['seeded_tracking_cost_ratio']:.2f}×")
     if "tracking_cost_ratio" in result:
         console.print(f"tracking cost, largest N / smallest: {result['tracking_cost_ratio']:.2f}×; "
                       f"whole filter: {result['whole_cost_ratio']:.1f}×")  # fmt: skip

@@ -37,6 +37,7 @@ from service.encoding.sequence import (
     likelihood,
 )
 from service.encoding.sequence_config import SequenceConfig
+from service.errors import InvalidInputError
 
 MAX_WINDOWS = 16
 PROBATION = 8  # frames a candidate window stays open, at least
@@ -76,6 +77,32 @@ class DriveTracker:
         self.evidence = 0.0  # running log ratio: the windows' evidence over the route's
         self.frames = 0
         self.recent: deque[tuple[Any, float | None]] = deque(maxlen=REPLAY)
+
+    def start_at(self, frame: int) -> None:
+        """Start tracking a vehicle known to stand at ``frame`` (a position fix, or where its
+        last drive ended): one window around it, every speed equally likely, the rest of the
+        route at the relocalisation level. Without tracking (or on a short route) the whole
+        filter starts from the same belief."""
+        frame = int(frame)
+        if not 0 <= frame < self.n_frames:
+            raise InvalidInputError(f"frame {frame} is not on the route (0 … {self.n_frames - 1})")
+        self.reset()
+        S = self.speeds.size
+        eps = self.config.relocalization
+        if not self.windowed_allowed:
+            assert self.whole is not None
+            state = np.full((S, self.n_frames), eps / (S * self.n_frames), dtype=np.float32)
+            state[:, frame] += np.float32((1.0 - eps) / S)
+            self.whole.set_state(state, 0)
+            return
+        lo = int(np.clip(frame - self.config.track_radius, 0, self.n_frames - self.width))
+        P = np.full((S, 1, self.width), eps / (S * self.n_frames), dtype=np.float32)
+        P[:, 0, frame - lo] += np.float32((1.0 - eps) / S)
+        self.whole, self.P = None, P
+        self.lo = np.array([lo], dtype=np.int64)
+        self.age = np.array([PROBATION], dtype=np.int64)
+        self.outside = eps * (self.n_frames - self.width) / self.n_frames
+        self.evidence = 1.0
 
     @property
     def mode(self) -> str:

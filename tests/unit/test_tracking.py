@@ -81,7 +81,8 @@ def test_stops_and_speed_changes_are_followed_by_default() -> None:
     S = bumps(truth, noise=0.5, seed=4)
     got = filter_sequence(S)
     assert within(got.index[20:], truth[20:]).mean() > 0.9
-    no_stops = SequenceConfig(stop_probability=0.0, reverse=False)  # a train's prior
+    # the former defaults: forwards only, no stopped state, rare speed changes
+    no_stops = SequenceConfig(stop_probability=0.0, reverse=False, speed_change=0.01)
     assert within(filter_sequence(S, no_stops).index[20:], truth[20:]).mean() < 0.7
 
 
@@ -182,3 +183,15 @@ def test_the_code_scorer_agrees_with_the_models_frame_scores() -> None:
     tracked = sequence_localize(model, route.query)
     whole = sequence_localize(model, route.query, SequenceConfig(tracking=False))
     assert (np.abs(tracked.index - whole.index) <= 2).mean() > 0.95
+
+
+def test_a_vehicle_started_at_a_known_place_is_tracked_from_its_first_frame() -> None:
+    truth = np.arange(900, 1300)
+    S = bumps(truth, noise=0.8, seed=9)  # weak evidence: from nowhere it takes a while
+    tracker = DriveTracker(MatrixScorer(S))
+    tracker.start_at(900)
+    assert tracker.mode == "windows"
+    est = np.array([tracker.update(t).index for t in range(len(S))])
+    assert within(est, truth).mean() > 0.97
+    with pytest.raises(InvalidInputError, match="not on the route"):
+        tracker.start_at(N)
