@@ -15,9 +15,10 @@ from service.jobs.pipeline import PROGRESS_INTERVAL_S, FitReporter, JobFinished
 
 
 def test_a_running_job_reports_per_class_progress(backend, route_file: Path, wait_done):
-    # one digit of 400 classes with logreg: 400 one-vs-rest problems, a couple of seconds
+    # one digit of 800 classes with logreg: 800 one-vs-rest problems, several progress
+    # intervals (PROGRESS_INTERVAL_S) even on an idle machine
     route = route_file.with_name("progress-route.npy")
-    np.save(route, smooth_route(400, 32, seed=9).reference, allow_pickle=False)
+    np.save(route, smooth_route(800, 64, seed=9).reference, allow_pickle=False)
     params = ModelParams.parse(trainer="logreg", n_patterns=1)
     job = backend.submit("progress", route, params, None, None)
     seen: list[tuple[float, str]] = []
@@ -30,12 +31,12 @@ def test_a_running_job_reports_per_class_progress(backend, route_file: Path, wai
     assert done.state == "succeeded", done.error
     midway = [(f, d) for f, d in seen if 0.0 < f < 1.0]
     assert midway, f"no progress seen while the job ran: {seen[-5:]}"
-    assert all(d.startswith("digit 1/1: ") and d.endswith("/400 classes") for _, d in midway)
+    assert all(d.startswith("digit 1/1: ") and d.endswith("/800 classes") for _, d in midway)
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions)
     assert done.progress.fraction == 1.0
     fit = done.progress.parts["fit"]
-    assert fit.done == fit.total == 400 and fit.detail == "digit 1/1: 400/400 classes"
+    assert fit.done == fit.total == 800 and fit.detail == "digit 1/1: 800/800 classes"
 
 
 def test_a_chunked_job_records_every_part(backend, route_file, wait_done):
