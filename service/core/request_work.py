@@ -123,6 +123,11 @@ class _CancellableModel:
         # drive_scorer(self) reads this entry: the tracker scores through the model's scorer
         self.__dict__["_drive_scorer"] = _CancellableScorer(drive_scorer(model), cancellation, what)
 
+    def localize(self, Q: np.ndarray) -> Any:
+        """Each frame's own answer (the filter's raw answers), in one call."""
+        self._cancellation.check(self._what)
+        return self._model.localize(Q)
+
     def frame_log_scores(self, Q: np.ndarray) -> np.ndarray:
         self._cancellation.check(self._what)
         scores = self._model.frame_log_scores(Q)

@@ -75,6 +75,17 @@ def frame_spacing(loaded: LoadedModel) -> float:
     return float(spacing)
 
 
+def odometry_frames(loaded: LoadedModel, n: int, odometry: Any = None,
+                    odometry_m: Any = None) -> np.ndarray | None:  # fmt: skip
+    """A drive's per-frame displacements in reference frames (NaN: a frame without), from
+    ``odometry`` (frames) or ``odometry_m`` (metres over the map's frame spacing), not both."""
+    if odometry is not None and odometry_m is not None:
+        raise InvalidInputError("send odometry in frames or in metres, not both")
+    if odometry_m is not None:
+        return odometry_in_frames(odometry_m, n, frame_spacing(loaded))
+    return None if odometry is None else check_odometry(odometry, n)
+
+
 class SequenceLocalizer:
     """Localize ordered frames as one drive, through ``service`` (same validation, metrics and
     hot-swap semantics as ``/localize/batch``: one model version answers the whole drive)."""
@@ -142,11 +153,7 @@ class SequenceLocalizer:
         map's recorded frame spacing); ``None`` entries: frames without. Refused beyond the
         per-request work budget (frames × N × (S + 8)) before any work; ``cancellation``
         stops the filter between blocks of frames."""
-        u = None if odometry is None else check_odometry(odometry, Q.shape[0])
-        if odometry_m is not None:
-            if u is not None:
-                raise InvalidInputError("send odometry in frames or in metres, not both")
-            u = odometry_in_frames(odometry_m, Q.shape[0], frame_spacing(loaded))
+        u = odometry_frames(loaded, Q.shape[0], odometry, odometry_m)
         self._check_frames(loaded, Q.shape[0])
         what = f"a drive of {Q.shape[0]} frames on map {loaded.map!r}"
         self.service.check_work(loaded, Q.shape[0], config.n_states, what=what)

@@ -45,7 +45,7 @@ import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
-from service.core.sequences import chunk_of, frame_spacing
+from service.core.sequences import chunk_of, odometry_frames
 from service.core.stream_budget import StreamLease
 from service.core.vehicle_state import VehicleState
 from service.encoding.adaptation import (
@@ -55,7 +55,7 @@ from service.encoding.adaptation import (
     route_statistics,
 )
 from service.encoding.drive_scoring import drive_scorer
-from service.encoding.sequence import SequenceConfig, check_odometry, odometry_in_frames
+from service.encoding.sequence import SequenceConfig
 from service.encoding.tracking import DriveTracker
 from service.errors import (
     DimensionMismatchError,
@@ -235,13 +235,9 @@ class FleetStream:
 
     def _track(self, frame: Frame, loaded: LoadedModel, Q: np.ndarray) -> tuple[int, float, int]:
         """The vehicle's filtered estimate after ``Q``: index, confidence, frames used."""
-        odometry = None
-        if frame.odometry is not None and frame.odometry_m is not None:
-            raise InvalidInputError("send odometry in frames or in metres, not both")
-        if frame.odometry is not None:
-            odometry = float(check_odometry([frame.odometry], 1)[0])
-        elif frame.odometry_m is not None:
-            odometry = float(odometry_in_frames([frame.odometry_m], 1, frame_spacing(loaded))[0])
+        u = odometry_frames(loaded, 1, None if frame.odometry is None else [frame.odometry],
+                            None if frame.odometry_m is None else [frame.odometry_m])  # fmt: skip
+        odometry = None if u is None else float(u[0])
         scorer = drive_scorer(loaded.model)
         track = self._filters.current(
             frame.vehicle_id, loaded, lambda: DriveTracker(scorer, self.config),

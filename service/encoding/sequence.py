@@ -313,7 +313,8 @@ def sequence_localize(
         tracker = DriveTracker(scorer, config)
         preps = (p for s in range(0, Q.shape[0], rows_per_call)
                  for p in scorer.prepare_many(Q[s : s + rows_per_call]))  # fmt: skip
-        return _run(tracker.update, preps, Q.shape[0], u, lambda _, prep: scorer.best(prep))
+        raw = np.asarray(model.localize(Q).index)  # each frame's own answer, in one batch
+        return _run(tracker.update, preps, Q.shape[0], u, lambda t, _: int(raw[t]))
     filt = SequenceFilter(n_frames, config)
 
     def rows() -> Iterable[np.ndarray]:
