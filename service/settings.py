@@ -36,6 +36,16 @@ class Settings(BaseSettings):
         16, ge=1, description="largest body of a public REST request (localize) and of a gRPC "
         "Localize message (MiB)",
     )  # fmt: skip
+    max_public_requests: int = Field(
+        128, ge=1, le=100_000, description="public REST requests in flight at once, every "
+        "client together, from their headers to the end of their answer (GET and HEAD, and "
+        "admin calls, are not counted); one more is refused with 503 and Retry-After",
+    )  # fmt: skip
+    max_public_bodies_mb: int = Field(
+        64, ge=1, le=1_048_576, description="MiB of body that public REST requests in flight "
+        "hold together (a declared Content-Length is reserved before the body is read); a "
+        "request that does not fit is refused with 503 and Retry-After",
+    )  # fmt: skip
     max_request_megapixels: float = Field(
         256.0, gt=0, description="most image pixels one request (or stream frame) may make the "
         "server decode, summed over its images (millions)",

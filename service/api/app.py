@@ -12,6 +12,7 @@ from service.api import access_log, routes_admin, routes_health, routes_localize
 from service.api.auth import AdminGate
 from service.api.companions import Companion
 from service.api.errors import install_error_handlers
+from service.api.inflight import PublicInflight
 from service.api.limits import BodySizeLimit
 from service.api.metrics import HttpMetrics
 from service.core.context import ServiceContext, build_context
@@ -69,6 +70,9 @@ def create_app(
     app.include_router(routes_sequence.router)
     app.include_router(routes_admin.router)
     app.include_router(routes_health.router)
+    assert ctx.public is not None
+    # inside BodySizeLimit: a body over its own limit is a 413 before it takes any budget
+    app.add_middleware(PublicInflight, budget=ctx.public, admin_prefixes=AdminGate.PREFIXES)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 1024 * 1024,
                        public_max_bytes=settings.max_public_body_mb * 1024 * 1024,
                        admin_prefixes=AdminGate.PREFIXES)  # fmt: skip

@@ -11,14 +11,19 @@ from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.errors import GridplaceError, UnauthorizedError, error_class
+from service.errors import CapacityError, GridplaceError, UnauthorizedError, error_class
 
 log = logging.getLogger("gridplace.api")
+RETRY_AFTER_S = 1  # a capacity refusal: what is held is given back as requests end
 _METHODS = {"GET", "PUT", "POST", "DELETE", "OPTIONS", "HEAD", "PATCH", "TRACE"}
 
 
 def error_response(exc: GridplaceError) -> JSONResponse:
-    headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError) else None
+    headers = None
+    if isinstance(exc, UnauthorizedError):
+        headers = {"WWW-Authenticate": "Bearer"}
+    elif isinstance(exc, CapacityError):
+        headers = {"Retry-After": str(RETRY_AFTER_S)}
     return JSONResponse(exc.to_dict(), status_code=exc.http_status, headers=headers)
 
 

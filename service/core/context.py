@@ -15,6 +15,7 @@ from service.core.batching import MicroBatcher
 from service.core.localization import LocalizationService
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import ModelStore
+from service.core.public_budget import PublicBudget
 from service.core.stream_budget import StreamBudget
 from service.core.vehicle_adapters import VehicleAdapters
 from service.settings import Settings
@@ -37,6 +38,7 @@ class ServiceContext:
     batcher: MicroBatcher | None = None  # None: localize inline (``batching`` off)
     vehicles: VehicleAdapters | None = None  # REST vehicles' appearance statistics
     streams: StreamBudget | None = None  # what open gRPC streams hold, server-wide
+    public: PublicBudget | None = None  # public REST requests in flight, server-wide
     _blas: Any = None
 
     def __post_init__(self) -> None:
@@ -47,6 +49,8 @@ class ServiceContext:
         if self.streams is None:
             self.streams = StreamBudget(s.max_streams, s.max_stream_vehicles,
                                         s.max_stream_state_mb * 2**20)  # fmt: skip
+        if self.public is None:
+            self.public = PublicBudget(s.max_public_requests, s.max_public_bodies_mb * 2**20)
 
     def start(self) -> None:
         """Start the hot-swap poller (its first pass loads every active version) and the
