@@ -116,13 +116,13 @@ def _serve_child(route: str, registry: str, n_queries: int, n_single: int, batch
 def _sweep(model: Any, plan: Any, route: str, n_queries: int, noises: list[float],
            n_single: int, batch: int, Q: np.ndarray) -> dict[str, Any]:  # fmt: skip
     """Precision of the flat scan and of the inverted file at several ``nprobe`` (the default
-    ×1/8 … ×4) for queries at each noise of ``noises``, and the latency at every ``nprobe``."""
+    ×1/2 … ×4) for queries at each noise of ``noises``, and the latency at every ``nprobe``."""
     from dataclasses import replace
 
     from service.encoding import precision_at
 
     ivf = plan.ivf
-    probes = sorted({min(ivf.nlist, max(1, int(ivf.nprobe * f))) for f in (1/8, 1/4, 1/2, 1, 2, 4)})
+    probes = sorted({min(ivf.nlist, max(1, int(ivf.nprobe * f))) for f in (1/2, 3/4, 1, 3/2, 2, 4)})
     out: dict[str, Any] = {"nlist": ivf.nlist, "default_nprobe": ivf.nprobe, "probes": probes,
                            "latency": {}, "noises": {}}  # fmt: skip
     singles = iter(range(10**9))

@@ -19,15 +19,14 @@ def _series(pts: list[dict[str, Any]]) -> dict[str, list[tuple[int, float, float
         for key in ("ivf", "flat"):
             if key in s:
                 ivf = s["inverted_file"]
-                probe = "" if key == "flat" else (
-                    f", nprobe ≈ 1/{round(ivf['nlist'] / ivf['nprobe'])} of the lists")
+                probe = "" if key == "flat" else f", nprobe {ivf['nprobe']}"
                 out.setdefault(f"gridplace {preset} ({key}{probe})", []).append(
                     (n, s[key]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
         sweep = s.get("nprobe_sweep")
         if sweep:  # the default nprobe of today's rule, where the sweep measured it
             probe = default_nprobe(int(sweep["nlist"]))
             nearest = min(sweep["probes"], key=lambda v: abs(v - probe))
-            out.setdefault(f"gridplace {preset} (ivf, nprobe ≈ 1/64 of the lists)", []).append(
+            out.setdefault(f"gridplace {preset} (ivf, default nprobe)", []).append(
                 (n, sweep["latency"][str(nearest)]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
         for kind, f in p["faiss"].items():
             if "skipped" not in f:

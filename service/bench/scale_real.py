@@ -29,7 +29,7 @@ def run_scale_real_bench(reference: Path, query: Path, out: Path, preset: str = 
     from threadpoolctl import threadpool_limits
 
     from service.encoding import ModelParams, build_model, precision_at
-    from service.encoding.inverted_file import search
+    from service.encoding.ivf_scan import search
     from service.encoding.serving_plan import plan_for
 
     ref, qry = np.load(reference), np.load(query)

@@ -14,7 +14,7 @@ bound of that frame's flat log-softmax otherwise (the frames left out add to its
 What is stored: the centroids (float32), the frames of every list (int32, ascending within a
 list) and the list offsets — three plain arrays in the artifact beside the weights, so
 loading rebuilds nothing and no FAISS object is serialised. The weights are not copied:
-candidates are gathered from the stored int8 rows.
+candidates are gathered from the stored int8 rows and scored by :mod:`service.encoding.ivf_scan`.
 
 ``search`` of an encoder: ``flat`` (the exact reference), ``ivf``, or ``auto`` (the inverted
 file from :data:`AUTO_MIN_FRAMES` frames on).
@@ -23,8 +23,8 @@ file from :data:`AUTO_MIN_FRAMES` frames on).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal, Protocol
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
@@ -35,6 +35,7 @@ SEARCH_MODES: tuple[str, ...] = ("flat", "ivf", "auto")
 #: ``auto`` uses the inverted file from this many frames on (below, the flat scan costs
 #: well under a millisecond and is exact).
 AUTO_MIN_FRAMES = 65_536
+DEFAULT_NPROBE = 20
 _KMEANS_POINTS = 64  # training points per centroid (a sample of a long route)
 _KMEANS_ITER = 12
 _BLOCK_ROWS = 16_384  # prototypes dequantised / assigned at a time
@@ -57,10 +58,13 @@ def default_nlist(n_frames: int) -> int:
 
 
 def default_nprobe(nlist: int) -> int:
-    """Lists scanned per query: 1/64 of them, at least 16 (all of a short route's). On the
-    SYNTHETIC routes of ``gridplace bench scale`` with noisy queries, within a point of the
-    flat scan's precision at 100,000 and 1,000,000 frames (docs/RESULTS.md, "Scale")."""
-    return max(1, min(nlist, max(16, nlist // 64)))
+    """Lists scanned per query: :data:`DEFAULT_NPROBE` whatever the route's length (all of
+    a short route's). The lists grow as ``√N``, and on the SYNTHETIC routes of
+    ``gridplace bench scale`` the share of the prototypes that keeps the flat scan's precision
+    falls as they grow: 20 lists were within 0.6 points of it at 100,000 frames (1.6 % of the
+    prototypes) and 0.5 at 1,000,000 (0.5 %), on validation queries of those routes
+    (docs/RESULTS.md, "Scale")."""
+    return max(1, min(nlist, DEFAULT_NPROBE))
 
 
 def _dequantised(weight: np.ndarray, scale: np.ndarray | None, s: int, e: int) -> np.ndarray:
@@ -74,6 +78,16 @@ class InvertedFile:
     members: np.ndarray  # (N,) int32 frames grouped by list, ascending within a list
     offsets: np.ndarray  # (nlist + 1,) int64 start of every list in ``members``
     nprobe: int
+    #: FAISS's flat inner-product index over the centroids (built here, never stored): the
+    #: ranking of the lists, one SIMD pass and a heap instead of NumPy's partition and sort
+    coarse: Any = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        import faiss
+
+        index = faiss.IndexFlatIP(self.centroids.shape[1])
+        index.add(self.centroids)
+        object.__setattr__(self, "coarse", index)
 
     @classmethod
     def fit(cls, weight: np.ndarray, scale: np.ndarray | None, nlist: int | None = None,
@@ -125,14 +139,11 @@ class InvertedFile:
         return int(self.centroids.nbytes + self.members.nbytes + self.offsets.nbytes)
 
     def lists(self, Z: np.ndarray, nprobe: int | None = None) -> np.ndarray:
-        """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first."""
+        """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first (the order of
+        lists whose centroids score alike is FAISS's)."""
         p = min(self.nlist, self.nprobe if nprobe is None else int(nprobe))
-        s = Z @ self.centroids.T
-        if p >= self.nlist:
-            return np.argsort(-s, axis=1, kind="stable")
-        top = np.argpartition(-s, p - 1, axis=1)[:, :p]
-        rows = np.arange(Z.shape[0])[:, None]
-        return top[rows, np.argsort(-s[rows, top], axis=1, kind="stable")]
+        _, top = self.coarse.search(np.ascontiguousarray(Z, dtype=np.float32), p)
+        return top
 
     def candidates(self, lists: np.ndarray) -> np.ndarray:
         """Frames of the given lists (one query's), concatenated."""
@@ -166,66 +177,3 @@ class InvertedFile:
             raise ValueError(f"{prefix}: inverted file misses frames")
         return out
 
-
-class Scorer(Protocol):
-    """What the search needs of a digit: its stored rows and how they score."""
-
-    weight: np.ndarray  # (N, m) int8 (with ``rowscale``) or float32
-    rowscale: np.ndarray | None
-    bias: np.ndarray  # (N,) float64
-    beta: float
-
-
-def _scores(dg: Scorer, Zc: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Float64 scores ``β·(z·w + b)`` of the frames ``ids`` for float32 rows ``Zc``, from
-    float32 products of the stored rows, as the flat scan computes them."""
-    W = dg.weight.take(ids, axis=0)
-    prod = Zc @ (W if W.dtype == np.float32 else W.astype(np.float32)).T
-    if dg.rowscale is not None:
-        prod *= dg.rowscale[ids]
-    S = prod + dg.bias[ids]
-    if dg.beta != 1.0:
-        S *= dg.beta
-    return S
-
-
-def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
-           nprobe: int | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Best frame and its log-softmax over the candidates for every float32 row of ``Zc``
-    ``(n, m)``: one query scans its lists' frames at once; a batch is scanned list by list,
-    each list's rows widened once for all the queries that probe it."""
-    n = Zc.shape[0]
-    lists = ivf.lists(Zc, nprobe)
-    if n == 1:
-        ids = ivf.candidates(lists[0])
-        S = _scores(dg, Zc, ids)[0]
-        best = float(S.max())
-        win = int(ids[S == best].min())  # the lowest frame on ties, as the flat scan
-        lse = math.log(float(np.exp(S - best).sum()))
-        return np.array([win], dtype=np.int64), np.array([-lse])
-    best = np.full(n, -np.inf)
-    arg = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
-    acc = np.zeros(n)  # Σ exp(S − best) over the candidates seen
-    flat = lists.ravel()
-    order = np.argsort(flat, kind="stable")
-    queries = (order // lists.shape[1]).astype(np.int64)
-    sorted_lists = flat[order]
-    cuts = np.flatnonzero(np.diff(sorted_lists)) + 1
-    o = ivf.offsets
-    for s, e in zip([0, *cuts.tolist()], [*cuts.tolist(), order.size], strict=True):
-        c = int(sorted_lists[s])
-        ids = ivf.members[o[c] : o[c + 1]]
-        if ids.size == 0:
-            continue
-        qs = queries[s:e]
-        S = _scores(dg, Zc[qs], ids)
-        top = S.argmax(axis=1)  # the first best: the lowest frame (ascending in a list)
-        bm = S[np.arange(qs.size), top]
-        old = best[qs]
-        new = np.maximum(old, bm)
-        acc[qs] = acc[qs] * np.exp(old - new) + np.exp(S - new[:, None]).sum(axis=1)
-        cand = ids[top].astype(np.int64)
-        take = (bm > old) | ((bm == old) & (cand < arg[qs]))
-        arg[qs] = np.where(take, cand, arg[qs])
-        best[qs] = new
-    return arg, -np.log(acc)

@@ -112,6 +112,7 @@ class QuantizedLinear:
 #: (:func:`int8_products`), so serving holds no float32 copy of a long route's weights.
 FLOAT32_COPY_BYTES = 32 << 20
 _PRODUCT_ROWS = 8192  # int8 weight rows widened to float32 at a time
+_PRODUCT64_ROWS = 2048  # int8 weight rows dequantised to float64 at a time (4 MB at d' = 256)
 
 
 def int8_products(Z: np.ndarray, weight: np.ndarray, scale: np.ndarray,
@@ -127,6 +128,22 @@ def int8_products(Z: np.ndarray, weight: np.ndarray, scale: np.ndarray,
         e = min(tau, s + _PRODUCT_ROWS)
         np.matmul(Z, weight[s:e].astype(np.float32).T, out=out[:, s:e])
     out *= scale
+    return out
+
+
+def int8_products64(Z: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Float64 ``Z @ (scale·W)ᵀ`` of float64 rows ``Z`` and int8 rows ``W`` with per-row
+    ``scale``, each row block dequantised in float64 exactly as
+    :meth:`QuantizedLinear.dequantized` does (``W·scale``, exact) and multiplied: the
+    stored model's float64 products, with :data:`_PRODUCT64_ROWS` rows of float64 weights in
+    memory at a time instead of all ``τ``."""
+    tau = weight.shape[0]
+    out = np.empty((Z.shape[0], tau))
+    for s in range(0, tau, _PRODUCT64_ROWS):
+        e = min(tau, s + _PRODUCT64_ROWS)
+        block = weight[s:e].astype(np.float64)
+        block *= scale[s:e, None].astype(np.float64)
+        np.matmul(Z, block.T, out=out[:, s:e])
     return out
 
 

@@ -36,9 +36,14 @@ from service.encoding.exact_decode import (
     table_decode,
 )
 from service.encoding.inverted_file import InvertedFile, Search
-from service.encoding.inverted_file import search as ivf_search
+from service.encoding.ivf_scan import search as ivf_search
 from service.encoding.phases import index_to_labels, place_values
-from service.encoding.quantization import FLOAT32_COPY_BYTES, int8_max_row_norm, int8_products
+from service.encoding.quantization import (
+    FLOAT32_COPY_BYTES,
+    int8_max_row_norm,
+    int8_products,
+    int8_products64,
+)
 from service.encoding.single_query import SingleQueryPath
 
 Precision = Literal["float32", "float64"]
@@ -101,10 +106,19 @@ class DigitBlock:
     def n_classes(self) -> int:
         return int(self.weight.shape[0])
 
+    @property
+    def long64(self) -> bool:
+        """Whether the float64 weights exceed what :mod:`float64_cache` may keep: their
+        products are then made from the int8 rows block by block, never as one float64 copy."""
+        return self.weight.size * 8 > float64_cache.CACHE_BYTES
+
     def raw(self, Z: np.ndarray, precision: Precision, out: np.ndarray | None = None) -> np.ndarray:
         """Scores ``β·(z·w_c + b_c)`` of every class: float32 products of ``Z`` (float32)
         or, for ``float64``, the stored model's own float64 arithmetic."""
-        if precision == "float64":
+        if precision == "float64" and self.rowscale is not None and self.long64:
+            prod = int8_products64(Z.take(self.columns, axis=1), self.weight, self.rowscale)
+            b = self.bias
+        elif precision == "float64":
             W, b = self.dense64()
             prod = Z.take(self.columns, axis=1) @ W.T
         else:  # take() gathers columns ~2x faster than fancy indexing

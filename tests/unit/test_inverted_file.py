@@ -11,9 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.encoding import PhaseEncoder, load_model, save_model
-from service.encoding.inverted_file import InvertedFile, default_nlist, default_nprobe, search
-from service.encoding.quantization import QuantizedLinear, int8_products
-from service.encoding.serving_plan import ServingPlan, plan_for
+from service.encoding.inverted_file import InvertedFile, default_nlist, default_nprobe
+from service.encoding.ivf_scan import search
+from service.encoding.quantization import QuantizedLinear, int8_products, int8_products64
+from service.encoding.serving_plan import DigitBlock, ServingPlan, plan_for
 from service.encoding.synthetic import smooth_route
 from service.errors import ArtifactError, InvalidParameterError
 
@@ -92,10 +93,10 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
 
 
 def test_the_default_lists_and_probes() -> None:
-    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 62
-    assert default_nlist(100_000) == 1265 and default_nprobe(1265) == 19
+    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 20
+    assert default_nlist(100_000) == 1265 and default_nprobe(1265) == 20
     assert default_nlist(3) == 3 and default_nprobe(3) == 3
-    assert default_nprobe(100) == 16
+    assert default_nprobe(100) == 20
 
 
 @pytest.mark.parametrize("n_queries", [1, 40])
@@ -180,6 +181,43 @@ def test_int8_products_are_those_of_the_float32_copy() -> None:
     copy = (lin.weight.astype(np.float64) * lin.scale[:, None]).astype(np.float32)  # type: ignore[index]
     np.testing.assert_allclose(int8_products(Z, lin.weight, lin.scale), Z @ copy.T,  # type: ignore[arg-type]
                                rtol=1e-5, atol=1e-5)  # fmt: skip
+
+
+@settings(max_examples=30, deadline=None)
+@given(tau=st.integers(1, 5000), m=st.integers(1, 24), n=st.integers(1, 4),
+       seed=st.integers(0, 2**16))  # fmt: skip
+def test_int8_float64_products_are_the_dequantised_models(tau: int, m: int, n: int,
+                                                          seed: int) -> None:  # fmt: skip
+    rng = np.random.default_rng(seed)
+    lin = QuantizedLinear.from_dense(rng.standard_normal((tau, m)), np.zeros(tau), "int8")
+    Z = rng.standard_normal((n, m))
+    W, _ = lin.dequantized()
+    np.testing.assert_allclose(int8_products64(Z, lin.weight, lin.scale), Z @ W.T,  # type: ignore[arg-type]
+                               rtol=1e-13, atol=1e-13)  # fmt: skip
+
+
+def test_long_int8_weights_score_every_frame_without_a_float64_copy(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    route = smooth_route(3000, 32, seed=7)  # several blocks of float64 rows
+    model = robust(search="flat").fit(route.reference)
+    Q = route.query[:6].astype(np.float64)
+    copied = plan_for(model)
+    want, want64 = copied.frame_log_scores(Q), copied.decode(Q, "float64")
+    monkeypatch.setattr("service.encoding.serving_plan.FLOAT32_COPY_BYTES", 0)
+    monkeypatch.setattr("service.encoding.float64_cache.CACHE_BYTES", 0)
+    plan = ServingPlan(model)
+    digit = plan.phases[0].digits[0]
+    assert digit.long64
+
+    def refused(_self: DigitBlock) -> None:
+        raise AssertionError("a float64 copy of the weights was made")
+
+    monkeypatch.setattr(DigitBlock, "_make_dense64", refused)
+    np.testing.assert_allclose(plan.frame_log_scores(Q), want, rtol=1e-12, atol=1e-12)
+    got64 = plan.decode(Q, "float64")
+    np.testing.assert_array_equal(got64.index, want64.index)
+    np.testing.assert_allclose(got64.log_score, want64.log_score, rtol=1e-12, atol=1e-12)
 
 
 def test_large_int8_weights_are_served_without_a_float32_copy(
