@@ -44,6 +44,10 @@ drive from 64.4 % to 0 % before and changes no answer now (docs/RESULTS.md). The
 a column may be divided by is floored at ``MIN_SCALE_RATIO·σ`` so that a column that stays
 constant in one drive (a saturated sky) is not blown up.
 
+A drive may start from a recorded condition's statistics instead of the route's
+(:meth:`AppearanceAdapter.start_from`, :mod:`service.encoding.conditions`), named or inferred
+from its first frames.
+
 Works with any model whose front-end keeps the route's statistics (:meth:`for_model`), or
 with statistics of a reference array (:meth:`for_reference`, e.g. for a baseline). Adapters of
 one model share its route statistics; each holds only its own ``3·d`` float32 values
@@ -63,6 +67,16 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.encoding.conditions import (
+    DEFAULT_INFERENCE_FRAMES,
+    REFERENCE,
+    ConditionInference,
+    ConditionSet,
+)
+from service.encoding.adaptation_step import LAST as _LAST
+from service.encoding.adaptation_step import MEAN as _MEAN
+from service.encoding.adaptation_step import MIN_SCALE_RATIO, step
+from service.encoding.adaptation_step import VAR as _VAR
 from service.encoding.normalization import Normalizer
 from service.errors import InvalidParameterError
 
@@ -71,11 +85,9 @@ DEFAULT_NOVELTY = 1.0
 DEFAULT_CLIP = 4.0
 DEFAULT_OUTLIER = 100.0
 DEFAULT_PATIENCE = 8
-MIN_SCALE_RATIO = 0.01  # √v is never taken below this fraction of the route's σ
 #: Python-side bytes of one adapter beyond its state array (the object, its attribute dict and
 #: the array's header), measured with tracemalloc (tests/unit/test_adaptation_memory.py)
 ADAPTER_OVERHEAD_BYTES = 800
-_MEAN, _VAR, _LAST = 0, 1, 2  # rows of an adapter's state
 
 
 class AdaptationConfig(BaseModel):
@@ -191,6 +203,9 @@ class AppearanceAdapter:
                 raise InvalidParameterError("route statistics need a scale per mean")
             self.route = RouteStatistics.of(mean, scale)
         self._state = np.empty((3, self.route.mean.shape[0]), dtype=np.float32)
+        self.conditions: ConditionSet | None = None  # the recorded conditions it may start from
+        self.condition = 0  # the row of ``conditions`` it started from (0: the route's own)
+        self._inference: ConditionInference | None = None
         self.reset()
 
     @classmethod
@@ -240,13 +255,44 @@ class AppearanceAdapter:
         """Memory this adapter holds on its own: the running mean, variance and last frame
         learnt from (``3·d`` float32) and the Python objects around them (the route's
         statistics are shared by every adapter of the model and not counted here)."""
-        return int(self._state.nbytes) + ADAPTER_OVERHEAD_BYTES
+        vote = 0 if self._inference is None else self._inference.nbytes
+        return int(self._state.nbytes) + ADAPTER_OVERHEAD_BYTES + vote
+
+    def start_from(self, conditions: ConditionSet, condition: int | None,
+                   frames: int = DEFAULT_INFERENCE_FRAMES) -> AppearanceAdapter:  # fmt: skip
+        """Start the drive from a recorded condition's statistics (``condition``: its row in
+        ``conditions``) instead of the route's, or with ``None`` from the condition its first
+        ``frames`` frames are closest to (:class:`~service.encoding.conditions.ConditionInference`;
+        until then from the closest so far). Resets the drive."""
+        if conditions.mean.shape[1] != self.n_features:
+            raise InvalidParameterError("the conditions hold statistics of another width")
+        self.conditions = conditions
+        self._inference = None if condition is not None else ConditionInference(conditions, frames)
+        self.condition = 0 if condition is None else condition
+        self.reset()
+        return self
+
+    @property
+    def condition_name(self) -> str:
+        """The condition the drive is standardised from (``reference``: the route's own)."""
+        return REFERENCE if self.conditions is None else self.conditions.names[self.condition]
+
+    @property
+    def inferring(self) -> bool:
+        """Whether the condition is (being) inferred from the drive's frames."""
+        return self._inference is not None
 
     def reset(self) -> None:
-        """Forget the drive: the next frame starts from the route's statistics."""
-        self._state[_MEAN] = self.route.mean
-        self._state[_VAR] = self.route.var
-        self._state[_LAST] = self.route.mean
+        """Forget the drive: the next frame starts from the statistics of the condition it
+        starts from (the route's own unless :meth:`start_from` said otherwise)."""
+        if self._inference is not None:
+            self._inference = ConditionInference(self._inference.conditions, self._inference.frames)
+            self.condition = 0
+        mean, var = self._seed(self.condition)
+        self._state[_MEAN] = mean
+        self._state[_VAR] = var
+        self._state[_LAST] = mean
+        self._seed_weight = 1.0  # the weight the starting statistics still have in the state
         self._has_last = False  # whether _state[_LAST] holds the last frame learnt from
         self._run = 0  # outlying frames in a row
         self._frames = self._learnt = self._outliers = 0
@@ -258,8 +304,43 @@ class AppearanceAdapter:
         out = np.empty_like(X)
         state = self._state[None]  # a (1, 3, d) view: the step updates the adapter in place
         for t in range(X.shape[0]):
-            out[t] = _step(self.route, self.config, state, X[t : t + 1], [self])[0]
+            self._infer(X[t])
+            out[t] = step(self.route, self.config, state, X[t : t + 1], [self])[0]
         return out
+
+    def _seed(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.conditions is None or i == 0:
+            return self.route.mean, self.route.var
+        return self.conditions.mean[i], np.maximum(self.conditions.var[i], self.route.floor)
+
+    def _infer(self, row: np.ndarray) -> None:
+        """While the condition is being inferred, let ``row`` (the next frame) vote; when the
+        closest condition changes, the starting statistics' remaining weight in the running
+        ones moves to it (what starting from it would have given, to first order)."""
+        vote = self._inference
+        if vote is None or vote.decided:
+            return
+        choice = vote.observe(row)
+        if choice != self.condition:
+            self._move_seed(choice)
+
+    def use_condition(self, i: int) -> None:
+        """Go on as if the drive had started from condition ``i`` of :attr:`conditions`
+        (inference, if any, stops)."""
+        if self.conditions is None or not 0 <= i < len(self.conditions):
+            raise InvalidParameterError(f"no condition {i} to start from")
+        self._inference = None
+        if i != self.condition:
+            self._move_seed(i)
+
+    def _move_seed(self, i: int) -> None:
+        (m0, v0), (m1, v1) = self._seed(self.condition), self._seed(i)
+        w = np.float32(self._seed_weight)
+        self._state[_MEAN] += w * (m1 - m0)
+        self._state[_VAR] = np.maximum(self._state[_VAR] + w * (v1 - v0), self.route.floor)
+        if not self._has_last:
+            self._state[_LAST] = self._state[_MEAN]
+        self.condition = i
 
     def _rows(self, X: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore"):  # a value beyond float32 is infinite: an outlier
@@ -295,11 +376,13 @@ def transform_rows(adapters: Sequence[AppearanceAdapter],
         for position in _positions(adapters, members):
             group = [adapters[i] for i in position]
             at = [local[i] for i in position]
+            for a, k in zip(group, at, strict=True):
+                a._infer(X[k])
             if len(position) == 1:
-                got = _step(first.route, first.config, group[0]._state[None], X[at], group)
+                got = step(first.route, first.config, group[0]._state[None], X[at], group)
             else:
                 state = np.stack([a._state for a in group])
-                got = _step(first.route, first.config, state, X[at], group)
+                got = step(first.route, first.config, state, X[at], group)
                 for a, s in zip(group, state, strict=True):
                     a._state[...] = s
             for i, row in zip(position, got, strict=True):
@@ -320,77 +403,8 @@ def _positions(adapters: Sequence[AppearanceAdapter], rows: list[int]) -> list[l
     return steps
 
 
-def _step(route: RouteStatistics, config: AdaptationConfig, state: np.ndarray, X: np.ndarray,
-          adapters: Sequence[AppearanceAdapter]) -> np.ndarray:  # fmt: skip
-    """One frame of each of ``k`` distinct drives: ``state`` (k, 3, d) holds their statistics
-    (updated in place), ``X`` (k, d) their frames; the adapted frames are returned and each
-    adapter's counters move on (its state array is the caller's to write back). float32
-    throughout, with as few passes over the columns as the rule allows: the step is
-    memory-bound (three times faster than in float64 for a fleet's batch at d = 2,048)."""
-    mean, var, last = state[:, _MEAN], state[:, _VAR], state[:, _LAST]
-    d = X.shape[1]
-    with np.errstate(over="ignore", invalid="ignore"):  # a wild frame's z² may overflow: inf
-        z = X - mean  # δ, then the z-score in place
-        root = np.maximum(var, route.floor)
-        np.sqrt(root, out=root)  # the standard deviation a column is divided by
-        z /= root
-        out = z * route.scale
-        out += route.mean
-        inside = np.vecdot(z, z) <= config.outlier * d  # mean z² ≤ outlier; False for inf, NaN
-        novel = inside
-        if config.novelty > 0 and inside.any():
-            diff = X - last
-            diff /= root
-            novel = inside & ~(np.vecdot(diff, diff) < config.novelty * d)
-    learn: list[int] = []
-    anchor: list[int] = []
-    for i, a in enumerate(adapters):
-        a._frames += 1
-        if not inside[i]:
-            a._outliers += 1
-            a._run += 1
-            if a._run >= config.patience:
-                anchor.append(i)
-                a._run = 0
-            continue
-        a._run = 0
-        if novel[i] or not a._has_last:
-            learn.append(i)
-            a._learnt += 1
-            a._has_last = True
-    if learn:
-        step = z
-        if not inside.all():
-            step[~inside] = 0.0  # an outlier's z may be infinite: it is not learnt from anyway
-        np.clip(step, -config.clip, config.clip, out=step)
-        step *= root  # δ, each column clipped at ±clip standard deviations
-        alpha, keep = np.float32(config.alpha), np.float32(1.0 - config.alpha)  # one rounding
-        if len(learn) == len(adapters):
-            gain = step * alpha
-            mean += gain  # exponentially weighted mean and variance
-            gain *= step  # α·δ²
-            var += gain
-            var *= keep  # (1 − α)(v + α·δ²), West (1979)
-            last[...] = X
-        else:  # rows that are not learnt from get a zero step and a factor 1: exactly unchanged
-            learns = np.zeros((len(adapters), 1), dtype=bool)
-            learns[learn] = True
-            gain = step * np.where(learns, alpha, np.float32(0.0))
-            mean += gain
-            gain *= step
-            var += gain
-            var *= np.where(learns, keep, np.float32(1.0))
-            np.copyto(last, X, where=learns)
-    anchor = [i for i in anchor if np.isfinite(X[i]).all()]  # never restart at an infinity
-    if anchor:  # the drive moved away for good: start over from this frame, the route's spread
-        mean[anchor] = X[anchor]
-        var[anchor] = route.var
-        last[anchor] = X[anchor]
-        for i in anchor:
-            adapters[i]._has_last = True
-    return out
-
-
-def adapt_drive(model: Any, X: np.ndarray, config: AdaptationConfig | None = None) -> np.ndarray:
-    """``X`` adapted as one drive in row order against ``model``'s route statistics."""
-    return AppearanceAdapter.for_model(model, config).transform(X)
+def adapt_drive(model: Any, X: np.ndarray, config: AdaptationConfig | None = None,
+                start: AppearanceAdapter | None = None) -> np.ndarray:  # fmt: skip
+    """``X`` adapted as one drive in row order against ``model``'s route statistics (by
+    ``start``, a fresh adapter of the model, e.g. one started from a condition)."""
+    return (start or AppearanceAdapter.for_model(model, config)).transform(X)

@@ -299,13 +299,16 @@ def can_whiten(model: Any) -> bool:
     return model.periods_[0] == model.n_frames_ and dc.columns.size == front.projection.n_components
 
 
-def append(model: Any, X: Any, places: Any, extend: bool, whiten: bool | None) -> None:
+def append(model: Any, X: Any, places: Any, extend: bool, whiten: bool | None,
+           condition: str | None = None) -> None:  # fmt: skip
     """:meth:`PhaseEncoder.partial_fit`'s work (see there); mutates ``model``."""
+    from service.encoding.conditions import record
     from service.encoding.front_end import FrontEnd
     from service.encoding.projection import Projection
 
     tallies = check_appendable(model)
     new = new_rows(X, places, model.n_features_in_)
+    recorded = record(getattr(model, "conditions_", None), condition, new.rows)
     n_new = check_new_places(new.places, model.n_frames_, extend)
     periods = extended_periods(model.code, model.periods_, model.n_frames_, n_new)
     if whiten is None:
@@ -352,6 +355,7 @@ def append(model: Any, X: Any, places: Any, extend: bool, whiten: bool | None) -
         model.normalizer_ = FrontEnd(front.normalizer, Projection(state.projection(T)))
         model.whitening_ = state
     model.periods_ = periods
+    model.conditions_ = recorded
     model._set_fitted(n_new, model.n_features_in_, model.n_traversals_ + new.n_traversals)
     if hasattr(model, "_fit_inverted_file"):  # the prototypes moved: their lists are refitted
         model.ivf_ = model._fit_inverted_file()

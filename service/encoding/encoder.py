@@ -9,6 +9,7 @@ import numpy as np
 
 from service.encoding import appending
 from service.encoding.base import Localization, PlaceRecognizer
+from service.encoding.conditions import conditions_from_arrays, conditions_to_arrays, fitted_conditions
 from service.encoding.decoding import DECODE_MODES, decode
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
@@ -160,17 +161,20 @@ class PhaseEncoder(PlaceRecognizer):
             raise InvalidParameterError(f"C must be > 0, got {self.C}")
 
     def fit(
-        self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None
+        self, X: Any, y: Any = None, progress: ProgressFn | None = None, *, places: Any = None,
+        conditions: Sequence[str | None] | None = None,
     ) -> PhaseEncoder:
         """Learn the encoders from descriptors whose rows are frames in route order, or from
         several traversals of the route, frame-aligned or with ``places`` giving each row's
-        place (:mod:`service.encoding.traversals`).
+        place (:mod:`service.encoding.traversals`). ``conditions``: one condition key (or
+        ``None``) per traversal, whose statistics queries may name
+        (:mod:`service.encoding.conditions`).
 
         ``progress(detail, done, total)`` follows the classes of every digit
         (:mod:`service.encoding.progress`)."""
         del y  # the labels are the places (the row order of one traversal)
         tr = as_traversals(X, places, keep_dtype=True)  # float32 rows stay float32 (a map)
-        X = tr.rows
+        given, X = X, tr.rows
         self._validate_params(X.shape[1])
         width = self._front_width(tr.n_places, X.shape[0], X.shape[1])
         front = FrontEnd.fit(X, bool(self.normalize), width, float(self.whiten_power), self.dtype)
@@ -180,6 +184,7 @@ class PhaseEncoder(PlaceRecognizer):
             self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
         self.normalizer_ = front if front.normalizer or front.projection else None
         self.ivf_ = self._fit_inverted_file()
+        self.conditions_ = fitted_conditions(given, conditions)
         self._set_fitted(self.n_frames_, X.shape[1], tr.n_traversals)
         return self
 
@@ -283,17 +288,18 @@ class PhaseEncoder(PlaceRecognizer):
 
     def partial_fit(
         self, X: Any, y: Any = None, *, places: Any = None, extend: bool = False,
-        whiten: bool | None = None,
+        whiten: bool | None = None, condition: str | None = None,
     ) -> PhaseEncoder:  # fmt: skip
         """Append one traversal (an array) or several (a list, with a place index each) to
         the fitted model, in time proportional to the new rows: class means updated, the
         column statistics and PCA axes kept (:mod:`service.encoding.appending`). ``places``:
         each row's place (``None``: row ``i`` is place ``i``); ``extend``: places beyond the
         route extend it; ``whiten``: learn the new rows' within-place scatter (default: where
-        the model has one class per place)."""
+        the model has one class per place); ``condition``: the traversals' condition key
+        (``season=winter``), whose statistics are recorded for queries to name."""
         del y
         self._check_fitted()
-        appending.append(self, X, places, extend, whiten)
+        appending.append(self, X, places, extend, whiten, condition)
         return self
 
     @property
@@ -372,6 +378,8 @@ class PhaseEncoder(PlaceRecognizer):
             "periods": list(self.periods_),
             "n_traversals": self.n_traversals_,
         }
+        if keys := conditions_to_arrays(getattr(self, "conditions_", None) or {}, arrays, prefix):
+            meta["conditions"] = keys
         return arrays, meta
 
     @classmethod
@@ -401,6 +409,7 @@ class PhaseEncoder(PlaceRecognizer):
                    for j in range(len(model.periods_))]  # fmt: skip
         model.tallies_ = tallies if all(t is not None for t in tallies) else None
         model.whitening_ = appending.ConditionWhitening.from_arrays(arrays, f"{prefix}whiten")
+        model.conditions_ = conditions_from_arrays(arrays, meta.get("conditions"), prefix)
         model._set_fitted(n, d, int(meta.get("n_traversals", 1)))
         return model
 
