@@ -127,6 +127,12 @@ class Settings(BaseSettings):
         "the last one that did by this many running variances per column (0: every frame)",
     )
 
+    condition_frames: int = Field(
+        8, ge=1, le=1024,  # service.encoding.conditions.DEFAULT_INFERENCE_FRAMES
+        description="an adapted drive that names no condition on a version recording "
+        "conditions infers the closest one from this many first frames (then keeps it)",
+    )
+
     def adaptation(self) -> AdaptationConfig:
         """The appearance adaptation parameters of drives served by this process."""
         from service.encoding.adaptation import AdaptationConfig

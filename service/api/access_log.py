@@ -4,7 +4,7 @@ uvicorn logs every request line with its query string. A caller may put a token 
 any name (it is refused: the admin API reads only ``Authorization``), so the line would store
 a secret in the log. This filter drops the query string of every admin path and, on all
 others, logs only the parameters of an allow-list (those the public API documents: the map,
-the descriptor size, adaptation and the sequence filter's options) with their values; every
+the descriptor size, adaptation, the condition and the sequence filter's options) with their values; every
 other parameter is logged as ``***``, name and value.
 """
 
@@ -16,7 +16,7 @@ from urllib.parse import parse_qsl, urlencode
 from service.wire import SequenceFilterOptions
 
 ACCESS_LOGGER = "uvicorn.access"
-LOGGED_PARAMS = frozenset({"map", "d", "adaptation", *SequenceFilterOptions.model_fields})
+LOGGED_PARAMS = frozenset({"map", "d", "adaptation", "condition", *SequenceFilterOptions.model_fields})
 HIDDEN = "***"
 
 

@@ -23,6 +23,7 @@ from service.api.schemas import (
     ERRORS,
     IMAGE_FORM,
     IMAGES_FORM,
+    ConditionParam,
     DimParam,
     MapParam,
     body_doc,
@@ -39,9 +40,10 @@ from service.wire import (
     LocalizeRequest,
     VehicleOptions,
 )
+from service.wire.localize import CONDITION_DOC
 
 router = APIRouter(prefix="/v1", tags=["localize"])
-VEHICLE_FIELDS = ("vehicle_id", "adaptation", "vehicle_key", "reset")
+VEHICLE_FIELDS = ("vehicle_id", "adaptation", "vehicle_key", "reset", "condition")
 
 
 def _b64(text: str, field: str) -> bytes:
@@ -66,6 +68,8 @@ def _one(result: LocalizeResult, vehicle_key: str | None = None) -> Response:
         "chunk": int(result.chunk[0]), "confidence": float(result.confidence[0]),
         "latency_ms": result.latency_ms, "adapted": result.adapted,
     }  # fmt: skip
+    if result.condition is not None:
+        body["condition"] = result.condition
     if vehicle_key is not None:
         body["vehicle_key"] = vehicle_key
     return Response(orjson.dumps(body), media_type="application/json")
@@ -77,6 +81,7 @@ def _many(result: LocalizeResult) -> Response:
         "map": result.map, "version": result.version, "n": len(result),
         "index": result.index, "chunk": result.chunk, "confidence": result.confidence,
         "latency_ms": result.latency_ms,
+        **({} if result.condition is None else {"condition": result.condition}),
     }, option=orjson.OPT_SERIALIZE_NUMPY), media_type="application/json")  # fmt: skip
 
 
@@ -168,7 +173,7 @@ def _localize_vehicle(request: Request, name: str, req: LocalizeRequest | Vehicl
         Q = check_descriptors(_descriptor_row(req), n_features=loaded.n_features, what="descriptor")
     Q = one_descriptor(Q, loaded, "a query")
     return answer_vehicle(svc, ctx.vehicles, loaded, Q, start, kind, req.vehicle_id,
-                          req.adaptation, req.vehicle_key, req.reset)  # fmt: skip
+                          req.adaptation, req.vehicle_key, req.reset, req.condition)  # fmt: skip
 
 
 def _localize_one(svc: LocalizationService, req: LocalizeRequest) -> LocalizeResult:
@@ -201,6 +206,9 @@ async def localize_batch(
     d_q: Annotated[DimParam, Query(alias="d", description="descriptor size (binary)")] = None,
     map_h: Annotated[MapParam, Header(alias="X-Gridplace-Map", description="or the map here")] = None,
     d_h: Annotated[DimParam, Header(alias="X-Gridplace-Dim", description="or d here")] = None,
+    condition_q: Annotated[ConditionParam, Query(alias="condition", description=(
+        "the condition the queries were taken in (binary bodies and forms; JSON: the "
+        "'condition' field): " + CONDITION_DOC))] = None,  # fmt: skip
 ) -> Response:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64"}``, a multipart form
     (``map`` + ``images`` files), or an ``application/octet-stream`` body of float32."""
@@ -209,10 +217,11 @@ async def localize_batch(
     if ctype.startswith("application/octet-stream"):
         name = binary_map(map_q, map_h, "batches")
         body = await request.body()
-        result = await run_in_threadpool(svc.localize_bytes, name, body, d_q or d_h)
+        result = await run_in_threadpool(svc.localize_bytes, name, body, d_q or d_h, condition_q)
     elif ctype.startswith("multipart/form-data"):
-        name, images, _ = await _form(request)
-        result = await run_in_threadpool(svc.localize_images, name, images)
+        name, images, given = await _form(request, ("condition",))
+        condition = given.get("condition", condition_q)
+        result = await run_in_threadpool(svc.localize_images, name, images, condition)
     else:
         req = BatchLocalizeRequest.model_validate_json(await _json_body(request))
         result = await run_in_threadpool(_localize_many, svc, req)
@@ -222,12 +231,13 @@ async def localize_batch(
 def _localize_many(svc: LocalizationService, req: BatchLocalizeRequest) -> LocalizeResult:
     if req.images_b64 is not None:
         blobs = [(f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)]
-        return svc.localize_images(req.map, blobs)
+        return svc.localize_images(req.map, blobs, req.condition)
     if req.descriptors_b64 is not None:
-        return svc.localize_bytes(req.map, _b64(req.descriptors_b64, "descriptors_b64"))
+        return svc.localize_bytes(req.map, _b64(req.descriptors_b64, "descriptors_b64"),
+                                  condition=req.condition)  # fmt: skip
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")
     if len({len(row) for row in req.descriptors}) != 1:
         raise InvalidInputError("descriptors rows have different lengths")
-    return svc.localize(req.map, req.descriptors)
+    return svc.localize(req.map, req.descriptors, condition=req.condition)

@@ -17,16 +17,17 @@ from fastapi import APIRouter, Header, Query, Request
 
 from service.api.cancellation import run_until_disconnected
 from service.api.routes_localize import _b64, _form, _json_body, _service, binary_map
-from service.api.schemas import ERRORS, IMAGES_FORM, DimParam, MapParam, body_doc
+from service.api.schemas import ERRORS, IMAGES_FORM, ConditionParam, DimParam, MapParam, body_doc
 from service.core.request_work import Cancellation
 from service.core.sequences import SequenceLocalizer, SequenceResult
 from service.encoding.sequence import SequenceConfig
 from service.errors import EmptyInputError, InvalidInputError
 from service.wire import SequenceFilterOptions, SequenceLocalization, SequenceLocalizeRequest
+from service.wire.localize import CONDITION_DOC
 
 router = APIRouter(prefix="/v1", tags=["localize"])
 
-_TRANSPORT_PARAMS = frozenset({"map", "d", "adaptation"})
+_TRANSPORT_PARAMS = frozenset({"map", "d", "adaptation", "condition"})
 FILTER_PARAMS = tuple(SequenceFilterOptions.model_fields)
 
 
@@ -35,7 +36,7 @@ def sequence_localization(r: SequenceResult) -> SequenceLocalization:
         map=r.map, version=r.version, n=len(r), index=r.index.tolist(), chunk=r.chunk.tolist(),
         confidence=r.confidence.tolist(), speed=r.speed.tolist(), raw_index=r.raw_index.tolist(),
         raw_confidence=r.raw_confidence.tolist(), filter=r.config.model_dump(),
-        latency_ms=r.latency_ms, adapted=r.adapted,
+        latency_ms=r.latency_ms, adapted=r.adapted, condition=r.condition,
     )  # fmt: skip
 
 
@@ -97,6 +98,9 @@ async def localize_sequence(
     adaptation: Annotated[bool | None, Query(
         description="appearance adaptation (binary and form bodies; JSON: the body's field); "
                     "unset: the server's default")] = None,
+    condition_q: Annotated[ConditionParam, Query(alias="condition", description=(
+        "the drive's condition (binary and form bodies; JSON: the body's field): "
+        + CONDITION_DOC))] = None,  # fmt: skip
 ) -> SequenceLocalization:
     """JSON ``{"map", "descriptors" | "descriptors_b64" | "images_b64", "filter"?}``, a
     multipart form (``map`` + ``images`` files), or an ``application/octet-stream`` body of
@@ -109,12 +113,14 @@ async def localize_sequence(
         body = await request.body()
         config = _config(query)
         result = await run_until_disconnected(request, lambda c: localizer.localize_bytes(
-            name, body, d_q or d_h, config, adaptation, cancellation=c))  # fmt: skip
+            name, body, d_q or d_h, config, adaptation, cancellation=c,
+            condition=condition_q))  # fmt: skip
     elif ctype.startswith("multipart/form-data"):
-        name, images, _ = await _form(request)
+        name, images, given = await _form(request, ("condition",))
         config = _config(query)
+        condition = given.get("condition", condition_q)
         result = await run_until_disconnected(request, lambda c: localizer.localize_images(
-            name, images, config, adaptation, cancellation=c))  # fmt: skip
+            name, images, config, adaptation, cancellation=c, condition=condition))  # fmt: skip
     else:
         req = SequenceLocalizeRequest.model_validate_json(await _json_body(request))
         if req.filter is not None and query:
@@ -125,7 +131,11 @@ async def localize_sequence(
             raise InvalidInputError(
                 "give adaptation in the body or in the query, not both"
             )
+        if req.condition is not None and condition_q is not None:
+            raise InvalidInputError("give condition in the body or in the query, not both")
         config = _config(req.filter if req.filter is not None else query)
+        if condition_q is not None:
+            req = req.model_copy(update={"condition": condition_q})
         adapt = req.adaptation if req.adaptation is not None else adaptation
         result = await run_until_disconnected(
             request, functools.partial(_localize_drive, localizer, req, config, adapt))
@@ -141,15 +151,15 @@ def _localize_drive(
             (f"images_b64[{i}]", _b64(t, f"images_b64[{i}]")) for i, t in enumerate(req.images_b64)
         ]
         return localizer.localize_images(req.map, blobs, config, adapt, req.odometry,
-                                         req.odometry_m, cancellation=cancellation)  # fmt: skip
+                                         req.odometry_m, cancellation, req.condition)  # fmt: skip
     if req.descriptors_b64 is not None:
         data = _b64(req.descriptors_b64, "descriptors_b64")
         return localizer.localize_bytes(req.map, data, None, config, adapt, req.odometry,
-                                        req.odometry_m, cancellation=cancellation)  # fmt: skip
+                                        req.odometry_m, cancellation, req.condition)  # fmt: skip
     assert req.descriptors is not None
     if not req.descriptors:
         raise EmptyInputError("descriptors is an empty list")
     if len({len(row) for row in req.descriptors}) != 1:
         raise InvalidInputError("descriptors rows have different lengths")
     return localizer.localize(req.map, req.descriptors, config, adapt, req.odometry,
-                              req.odometry_m, cancellation=cancellation)  # fmt: skip
+                              req.odometry_m, cancellation, req.condition)  # fmt: skip

@@ -18,10 +18,12 @@ from service.wire import (
     Localization,
     TrainingOptions,
 )
+from service.wire.localize import CONDITION_DOC
 
 # optional query/header parameters: absent, never null (a null would arrive as the text "null")
 MapParam = Annotated[str, Field(pattern=MAP_NAME_PATTERN)] | SkipJsonSchema[None]
 DimParam = Annotated[int, Field(ge=1)] | SkipJsonSchema[None]
+ConditionParam = Annotated[str, Field(min_length=1, max_length=4096)] | SkipJsonSchema[None]
 TextParam = Annotated[str, Field(min_length=1)] | SkipJsonSchema[None]
 
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -99,10 +101,13 @@ def form_schema(model: type[Any], files: dict[str, dict[str, Any]],
 
 BINARY = {"type": "string", "format": "binary"}
 MAP_FIELD = {"type": "string", "pattern": MAP_NAME_PATTERN, "description": "map (route) name"}
+CONDITION_FIELD = {"type": "string", "minLength": 1, "maxLength": 4096, "description": CONDITION_DOC}
 IMAGE_FORM = {"type": "object", "required": ["map", "image"], "properties": {
-    "map": MAP_FIELD, "image": {**BINARY, "description": "an encoded image (PNG, JPEG…)"}}}  # fmt: skip
+    "map": MAP_FIELD, "image": {**BINARY, "description": "an encoded image (PNG, JPEG…)"},
+    "condition": CONDITION_FIELD}}  # fmt: skip
 IMAGES_FORM = {"type": "object", "required": ["map", "images"], "properties": {
-    "map": MAP_FIELD, "images": {"type": "array", "minItems": 1, "items": BINARY}}}  # fmt: skip
+    "map": MAP_FIELD, "images": {"type": "array", "minItems": 1, "items": BINARY},
+    "condition": CONDITION_FIELD}}  # fmt: skip
 APPEND_FORM = form_schema(AppendOptions, {"file": {
     **BINARY, "description": ".npy/.npz descriptors of the version's width, or a .zip/.tar of "
     "images its extractor reads; repeat the field for several traversals"}})  # fmt: skip

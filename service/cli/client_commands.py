@@ -43,6 +43,10 @@ Token = Annotated[str | None, typer.Option("--token", envvar="GRIDPLACE_ADMIN_TO
                                            show_default=False, help="admin bearer token")]  # fmt: skip
 Timeout = Annotated[float, typer.Option(help="seconds per request")]
 AsJson = Annotated[bool, typer.Option("--json", help="print the server's answer as JSON")]
+ConditionOption = Annotated[str | None, typer.Option(
+    "--condition", help="the condition the queries were taken in: one the map's version "
+    "recorded from tagged traversals (e.g. season=winter), 'reference', or 'auto' (inferred "
+    "from the queries); they are standardised by its statistics")]  # fmt: skip
 
 
 @contextmanager
@@ -96,6 +100,7 @@ def localize(
     image: Annotated[
         list[Path] | None, typer.Option("--image", "-i", help="image file (repeatable)")
     ] = None,
+    condition: ConditionOption = None,
     url: Url = None,
     timeout: Timeout = 30.0,
     as_json: AsJson = False,
@@ -106,17 +111,19 @@ def localize(
     with _client(url, None, timeout) as gp:
         if npy is not None:
             Q, first = _load_queries(npy, rows)
-            batch = gp.localize_batch(map_name, Q)
+            batch = gp.localize_batch(map_name, Q, condition)
             labels = [str(first + i) for i in range(batch.n)]
         else:
             assert image is not None
-            batch = gp.localize_images(map_name, image)
+            batch = gp.localize_images(map_name, image, condition)
             labels = [p.name for p in image]
     if as_json:
         _print_json(batch)
         return
+    cond = f", condition {batch.condition}" if batch.condition else ""
     table = Table(
-        title=f"{batch.map} v{batch.version}: {plural(batch.n, 'query', 'queries')} in {batch.latency_ms:.1f} ms"
+        title=f"{batch.map} v{batch.version}: {plural(batch.n, 'query', 'queries')} in "
+        f"{batch.latency_ms:.1f} ms{cond}"
     )
     for col in ("query", "frame index", "chunk", "confidence"):
         table.add_column(col, justify="right")

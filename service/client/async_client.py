@@ -88,26 +88,29 @@ class AsyncGridplaceClient:
     async def localize(self, map: str, descriptor: ArrayLike | None = None, *,
                        image: ImageSource | None = None, vehicle_id: str | None = None,
                        adaptation: bool | None = None, vehicle_key: str | None = None,
-                       reset: bool | None = None) -> Localization:  # fmt: skip
+                       reset: bool | None = None, condition: str | None = None) -> Localization:  # fmt: skip
         """:meth:`GridplaceClient.localize` (vehicle keys remembered the same way)."""
         key = self._keys.key(map, vehicle_id, vehicle_key)
         answer = await self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation,
-                                                 key, reset))  # fmt: skip
+                                                 key, reset, condition))  # fmt: skip
         self._keys.remember(map, vehicle_id, answer.vehicle_key)
         return answer
 
-    async def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
-        return await self._send(calls.localize_batch(map, descriptors))
+    async def localize_batch(self, map: str, descriptors: ArrayLike,
+                             condition: str | None = None) -> BatchLocalization:  # fmt: skip
+        return await self._send(calls.localize_batch(map, descriptors, condition))
 
-    async def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
-        return await self._send(calls.localize_images(map, images))
+    async def localize_images(self, map: str, images: Sequence[ImageSource],
+                              condition: str | None = None) -> BatchLocalization:  # fmt: skip
+        return await self._send(calls.localize_images(map, images, condition))
 
     async def localize_sequence(self, map: str, descriptors: ArrayLike, *,
                                 adaptation: bool | None = None,
                                 odometry: Sequence[float | None] | None = None,
+                                condition: str | None = None,
                                 **filter_params: Any) -> SequenceLocalization:  # fmt: skip
         return await self._send(calls.localize_sequence(map, descriptors, filter_params,
-                                                        adaptation, odometry))  # fmt: skip
+                                                        adaptation, odometry, condition))  # fmt: skip
 
     async def upload_route(self, map: str, route: RouteSource | Sequence[RouteSource],
                            options: TrainingOptions | None = None, *,

@@ -146,13 +146,13 @@ def ready() -> Call[Readiness]:
 def localize(
     map_name: str, descriptor: ArrayLike | None, image: ImageSource | None,
     vehicle_id: str | None = None, adaptation: bool | None = None,
-    vehicle_key: str | None = None, reset: bool | None = None,
+    vehicle_key: str | None = None, reset: bool | None = None, condition: str | None = None,
 ) -> Call[Localization]:  # fmt: skip
     if (descriptor is None) == (image is None):
         raise InvalidInputError("localize needs exactly one of descriptor or image")
     read = _reader(Localization)
     fields = (("vehicle_id", vehicle_id), ("adaptation", adaptation),
-              ("vehicle_key", vehicle_key), ("reset", reset))  # fmt: skip
+              ("vehicle_key", vehicle_key), ("reset", reset), ("condition", condition))  # fmt: skip
     who: dict[str, Any] = {k: v for k, v in fields if v is not None}
     if image is not None:
         name, data = _read_image(image)
@@ -171,16 +171,22 @@ def localize(
     )  # fmt: skip
 
 
-def localize_batch(map_name: str, descriptors: ArrayLike) -> Call[BatchLocalization]:
+def _condition(condition: str | None) -> dict[str, str]:
+    return {} if condition is None else {"condition": condition}
+
+
+def localize_batch(map_name: str, descriptors: ArrayLike,
+                   condition: str | None = None) -> Call[BatchLocalization]:  # fmt: skip
     X = as_float32_rows(descriptors, "descriptors")
     return Call("POST", "/v1/localize/batch", _reader(BatchLocalization), kwargs={
-        "params": {"map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
+        "params": {"map": map_name, "d": X.shape[1], **_condition(condition)}, "content": X.tobytes(),
         "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip
 
 
 def localize_sequence(
     map_name: str, descriptors: ArrayLike, filter_params: dict[str, Any],
     adaptation: bool | None = None, odometry: Sequence[float | None] | None = None,
+    condition: str | None = None,
 ) -> Call[SequenceLocalization]:  # fmt: skip
     """Rows in driving order, one binary float32 request (JSON with base64 rows when
     ``odometry`` is given: one displacement per row, reference frames, ``None`` for a row
@@ -200,22 +206,25 @@ def localize_sequence(
             body["filter"] = options
         if adaptation is not None:
             body["adaptation"] = adaptation
+        body.update(_condition(condition))
         return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization),
                     kwargs={"json": body})  # fmt: skip
     if adaptation is not None:
         options["adaptation"] = adaptation
     params = {k: (str(v).lower() if isinstance(v, bool) else v) for k, v in options.items()}
     return Call("POST", "/v1/localize/sequence", _reader(SequenceLocalization), kwargs={
-        "params": {**params, "map": map_name, "d": X.shape[1]}, "content": X.tobytes(),
+        "params": {**params, "map": map_name, "d": X.shape[1], **_condition(condition)},
+        "content": X.tobytes(),
         "headers": {"Content-Type": "application/octet-stream"}})  # fmt: skip
 
 
-def localize_images(map_name: str, images: Sequence[ImageSource]) -> Call[BatchLocalization]:
+def localize_images(map_name: str, images: Sequence[ImageSource],
+                    condition: str | None = None) -> Call[BatchLocalization]:  # fmt: skip
     if not images:
         raise EmptyInputError("localize_images needs at least one image")
     files = [("images", _read_image(img)) for img in images]
-    return Call("POST", "/v1/localize/batch", _reader(BatchLocalization),
-                kwargs={"data": {"map": map_name}, "files": files})  # fmt: skip
+    return Call("POST", "/v1/localize/batch", _reader(BatchLocalization), kwargs={
+        "data": {"map": map_name, **_condition(condition)}, "files": files})  # fmt: skip
 
 
 def upload_route(

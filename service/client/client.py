@@ -137,37 +137,45 @@ class GridplaceClient:
     def localize(self, map: str, descriptor: ArrayLike | None = None, *,
                  image: ImageSource | None = None, vehicle_id: str | None = None,
                  adaptation: bool | None = None, vehicle_key: str | None = None,
-                 reset: bool | None = None) -> Localization:  # fmt: skip
+                 reset: bool | None = None, condition: str | None = None) -> Localization:  # fmt: skip
         """One query: a descriptor (d floats, sent as base64 float32) or an encoded image
         (bytes or a file path; the map's stored extractor turns it into a descriptor).
         With ``vehicle_id`` the server adapts the query to that vehicle's earlier ones
         (appearance adaptation; ``adaptation=False`` sends it as it is). The server keeps a
         vehicle's statistics under the ``vehicle_key`` its first answer carries; this client
         remembers it per map and vehicle and sends it again (pass ``vehicle_key`` to use
-        another, ``reset=True`` to start the vehicle's drive over)."""
+        another, ``reset=True`` to start the vehicle's drive over). ``condition``: the
+        condition the query was taken in (a key the version recorded, ``reference`` or
+        ``auto``; :mod:`service.core.query_conditions`)."""
         key = self._keys.key(map, vehicle_id, vehicle_key)
-        answer = self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation, key, reset))
+        answer = self._send(calls.localize(map, descriptor, image, vehicle_id, adaptation, key,
+                                           reset, condition))  # fmt: skip
         self._keys.remember(map, vehicle_id, answer.vehicle_key)
         return answer
 
-    def localize_batch(self, map: str, descriptors: ArrayLike) -> BatchLocalization:
-        """Many descriptors (an n × d matrix) in one binary little-endian float32 request."""
-        return self._send(calls.localize_batch(map, descriptors))
+    def localize_batch(self, map: str, descriptors: ArrayLike,
+                       condition: str | None = None) -> BatchLocalization:  # fmt: skip
+        """Many descriptors (an n × d matrix) in one binary little-endian float32 request,
+        standardised by ``condition`` when named."""
+        return self._send(calls.localize_batch(map, descriptors, condition))
 
-    def localize_images(self, map: str, images: Sequence[ImageSource]) -> BatchLocalization:
-        return self._send(calls.localize_images(map, images))
+    def localize_images(self, map: str, images: Sequence[ImageSource],
+                        condition: str | None = None) -> BatchLocalization:  # fmt: skip
+        return self._send(calls.localize_images(map, images, condition))
 
     def localize_sequence(
         self, map: str, descriptors: ArrayLike, *, adaptation: bool | None = None,
-        odometry: Sequence[float | None] | None = None, **filter_params: Any,
+        odometry: Sequence[float | None] | None = None, condition: str | None = None,
+        **filter_params: Any,
     ) -> SequenceLocalization:  # fmt: skip
         """An n × d matrix whose rows are one drive in order: the sequence filter's estimate
         and each frame's own answer; ``filter_params`` (e.g. ``emission_scale=0.2``,
         ``reverse=True``) override the server's filter defaults; ``adaptation`` turns
         appearance adaptation on or off (unset: the server's default); ``odometry``: the
-        vehicle's displacement since the previous row, reference frames, one per row."""
+        vehicle's displacement since the previous row, reference frames, one per row;
+        ``condition``: the drive's (unset: inferred when the version records conditions)."""
         return self._send(calls.localize_sequence(map, descriptors, filter_params, adaptation,
-                                                  odometry))  # fmt: skip
+                                                  odometry, condition))  # fmt: skip
 
     # -- admin ------------------------------------------------------------------------------
     def upload_route(

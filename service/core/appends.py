@@ -14,7 +14,9 @@ removed by the registry's orphan cleanup). The version appended to stays as it w
 The new version's ``extra`` records what it was built from: ``appended_to`` (the version),
 ``traversals`` (every traversal so far: the first version's, then each appended one with its
 rows, places, content hash and tags) and ``append`` (seconds, whether the route was extended,
-whether condition whitening was learnt). Its ``metrics.conditions`` are per-condition
+whether condition whitening was learnt). Tagged traversals leave their condition's column
+statistics in the model, under the key ``condition_key(tags)`` (``season=winter``), for
+queries to name or infer (:mod:`service.core.query_conditions`). Its ``metrics.conditions`` are per-condition
 validation figures: for each tag set, how the version appended to localised the new rows
 before learning them (within ±5 frames), beside those of earlier appends. An extension (``extend``: places beyond the route)
 keeps every existing index; a code whose periods cannot label it answers 409
@@ -35,6 +37,7 @@ import numpy as np
 
 from service.core.traversal_upload import UploadedFile, read_places
 from service.core.uploads import parse_route
+from service.encoding.conditions import condition_key
 from service.errors import (
     DimensionMismatchError,
     InvalidInputError,
@@ -100,7 +103,8 @@ def append_traversals(
     try:
         model.partial_fit(arrays if len(arrays) > 1 else arrays[0],
                           places=(index if len(index) > 1 else index[0]) if index else None,
-                          extend=options.extend, whiten=options.whiten)  # fmt: skip
+                          extend=options.extend, whiten=options.whiten,
+                          condition=condition_key(tags))  # fmt: skip
     except RetrainRequiredError as exc:
         raise RetrainRequiredError(
             f"{exc.message}: upload every traversal of the extended route as a new route "
@@ -133,7 +137,7 @@ def _validation(model: Any, base: VersionInfo, arrays: list[np.ndarray], index: 
     if not known.any():
         return out
     pred = model.predict(rows[known])
-    key = ",".join(f"{k}={v}" for k, v in sorted(tags.items())) or "untagged"
+    key = condition_key(tags) or "untagged"
     out[key] = {"rows": int(known.sum()), "version": base.version,
                 "precision_at_5": round(float(np.mean(np.abs(pred - places[known]) <= 5)), 4)}
     return out

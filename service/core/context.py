@@ -45,7 +45,8 @@ class ServiceContext:
         s = self.settings
         if self.vehicles is None:
             self.vehicles = VehicleAdapters(s.adaptation(), s.max_rest_vehicles,
-                                            s.rest_vehicle_state_mb * 2**20)  # fmt: skip
+                                            s.rest_vehicle_state_mb * 2**20,
+                                            s.condition_frames)  # fmt: skip
         if self.streams is None:
             self.streams = StreamBudget(s.max_streams, s.max_stream_vehicles,
                                         s.max_stream_state_mb * 2**20)  # fmt: skip

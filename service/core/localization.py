@@ -15,6 +15,7 @@ import numpy as np
 
 from service.core.metrics import ServiceMetrics
 from service.core.model_store import LoadedModel, ModelStore
+from service.core.query_conditions import standardise
 from service.core.request_work import check_request
 from service.core.traversal_upload import UploadedFile, parse_traversals, store_traversals
 from service.encoding import ModelParams, check_descriptors, check_route
@@ -54,6 +55,7 @@ class LocalizeResult:
     confidence: np.ndarray  # float64 (n,)
     latency_ms: float  # service-layer time: decode + extract + encode
     adapted: bool = False  # standardised by the vehicle's running statistics first
+    condition: str | None = None  # the condition the queries were standardised from
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -130,19 +132,23 @@ class LocalizationService:
             )  # fmt: skip
         return loaded
 
-    def localize(self, name: str, X: Any, *, input_kind: str = "descriptor") -> LocalizeResult:
-        """Localize descriptors (``(d,)`` or ``(n, d)``) on the active version of ``name``."""
+    def localize(self, name: str, X: Any, *, input_kind: str = "descriptor",
+                 condition: str | None = None) -> LocalizeResult:  # fmt: skip
+        """Localize descriptors (``(d,)`` or ``(n, d)``) on the active version of ``name``,
+        standardised by ``condition`` when named (:mod:`service.core.query_conditions`)."""
         start = time.perf_counter()
         loaded = self.served(name)  # one reference for the whole request: hot-swap safe
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
         self.check_work(loaded, Q.shape[0])
-        return self._answer(loaded, Q, start, input_kind)
+        return self._answer(loaded, Q, start, input_kind, condition)
 
-    def localize_bytes(self, name: str, data: bytes, n_features: int | None = None) -> LocalizeResult:
+    def localize_bytes(self, name: str, data: bytes, n_features: int | None = None,
+                       condition: str | None = None) -> LocalizeResult:  # fmt: skip
         """Localize a raw little-endian float32 body of ``n×d`` values."""
         start = time.perf_counter()
         loaded = self.served(name)
-        return self._answer(loaded, self.query_bytes(loaded, data, n_features), start, "binary")
+        Q = self.query_bytes(loaded, data, n_features)
+        return self._answer(loaded, Q, start, "binary", condition)
 
     def query_bytes(self, loaded: LoadedModel, data: bytes, n_features: int | None = None,
                     dtype: type = np.float64) -> np.ndarray:  # fmt: skip
@@ -159,7 +165,8 @@ class LocalizationService:
             return X.astype(dtype)
         return check_descriptors(X, n_features=loaded.n_features, what="descriptors")  # raises
 
-    def localize_images(self, name: str, images: Sequence[tuple[str, bytes]]) -> LocalizeResult:
+    def localize_images(self, name: str, images: Sequence[tuple[str, bytes]],
+                        condition: str | None = None) -> LocalizeResult:  # fmt: skip
         """Localize encoded images with the extractor stored with the active version."""
         start = time.perf_counter()
         if not images:
@@ -167,7 +174,7 @@ class LocalizationService:
         if len(images) > MAX_BATCH_IMAGES:
             raise InvalidInputError(f"at most {MAX_BATCH_IMAGES} images per request")
         loaded = self.served(name)
-        return self._answer(loaded, self.query_images(loaded, images), start, "image")
+        return self._answer(loaded, self.query_images(loaded, images), start, "image", condition)
 
     def check_work(self, loaded: LoadedModel, rows: int, states: int = 0, pixels: int = 0,
                    images: int = 0, what: str = "the request") -> None:  # fmt: skip
@@ -208,10 +215,11 @@ class LocalizationService:
                 )  # fmt: skip
         return total
 
-    def answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
-        """Localize validated queries on ``loaded`` and record the metrics (``start``: the
-        request's ``perf_counter`` at arrival)."""
-        return self._answer(loaded, Q, start, kind)
+    def answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str,
+               condition: str | None = None) -> LocalizeResult:  # fmt: skip
+        """Localize validated queries on ``loaded`` (standardised by ``condition`` when named)
+        and record the metrics (``start``: the request's ``perf_counter`` at arrival)."""
+        return self._answer(loaded, Q, start, kind, condition)
 
     def answer_many(self, loaded: LoadedModel, queries: Sequence[np.ndarray],
                     starts: Sequence[float], kinds: Sequence[str]) -> list[LocalizeResult]:  # fmt: skip
@@ -241,7 +249,9 @@ class LocalizationService:
                                       conf[rows], seconds * 1000.0))  # fmt: skip
         return out
 
-    def _answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str) -> LocalizeResult:
+    def _answer(self, loaded: LoadedModel, Q: np.ndarray, start: float, kind: str,
+                condition: str | None = None) -> LocalizeResult:  # fmt: skip
+        Q, used = standardise(loaded, Q, condition)
         # a batch is scored a block of rows at a time: the (rows, frames) scores of a large
         # batch would otherwise take far more memory than its body did
         step = max(MIN_BLOCK_ROWS, SCORE_BLOCK_BYTES // (8 * max(1, loaded.n_frames)))
@@ -254,6 +264,7 @@ class LocalizationService:
             np.concatenate([b.index for b in blocks]).astype(np.int64),
             np.concatenate([b.chunk for b in blocks]).astype(np.int64),
             np.concatenate([b.confidence for b in blocks]).astype(np.float64), seconds * 1000.0,
+            condition=used,
         )  # fmt: skip
 
     # -- training ---------------------------------------------------------------------

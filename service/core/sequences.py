@@ -20,6 +20,7 @@ import numpy as np
 
 from service.core.localization import MAX_BATCH_IMAGES, LocalizationService
 from service.core.model_store import LoadedModel
+from service.core.query_conditions import new_drive, standardise
 from service.core.request_work import Cancellation, cancellable
 from service.encoding import check_descriptors
 from service.encoding.adaptation import adapt_drive, adapts
@@ -49,6 +50,7 @@ class SequenceResult:
     config: SequenceConfig
     latency_ms: float
     adapted: bool = False  # the drive was standardised by its own running statistics
+    condition: str | None = None  # the condition it was standardised from
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -95,28 +97,29 @@ class SequenceLocalizer:
 
     def localize(self, name: str, X: Any, config: SequenceConfig, adapt: bool | None = None,
                  odometry: Any = None, odometry_m: Any = None,
-                 cancellation: Cancellation | None = None) -> SequenceResult:  # fmt: skip
+                 cancellation: Cancellation | None = None,
+                 condition: str | None = None) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = check_descriptors(X, n_features=loaded.n_features, what="descriptors")
         return self.run(loaded, Q, config, start, "descriptor", adapt, odometry, odometry_m,
-                        cancellation)  # fmt: skip
+                        cancellation, condition)  # fmt: skip
 
     def localize_bytes(
         self, name: str, data: bytes, n_features: int | None, config: SequenceConfig,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
-        cancellation: Cancellation | None = None,
+        cancellation: Cancellation | None = None, condition: str | None = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         loaded = self.service.served(name)
         Q = self.service.query_bytes(loaded, data, n_features)
         return self.run(loaded, Q, config, start, "binary", adapt, odometry, odometry_m,
-                        cancellation)  # fmt: skip
+                        cancellation, condition)  # fmt: skip
 
     def localize_images(
         self, name: str, images: Sequence[tuple[str, bytes]], config: SequenceConfig,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
-        cancellation: Cancellation | None = None,
+        cancellation: Cancellation | None = None, condition: str | None = None,
     ) -> SequenceResult:  # fmt: skip
         start = time.perf_counter()
         if not images:
@@ -127,7 +130,7 @@ class SequenceLocalizer:
         self._check_frames(loaded, len(images))
         Q = self.service.query_images(loaded, images, states=config.n_states)  # work checked
         return self.run(loaded, Q, config, start, "image", adapt, odometry, odometry_m,
-                        cancellation)  # fmt: skip
+                        cancellation, condition)  # fmt: skip
 
     def adapts(self, loaded: LoadedModel, adapt: bool | None) -> bool:
         """Whether a drive on ``loaded`` is adapted (``adapt=True`` on a map without route
@@ -146,20 +149,26 @@ class SequenceLocalizer:
     def run(
         self, loaded: LoadedModel, Q: np.ndarray, config: SequenceConfig, start: float, kind: str,
         adapt: bool | None = None, odometry: Any = None, odometry_m: Any = None,
-        cancellation: Cancellation | None = None,
+        cancellation: Cancellation | None = None, condition: str | None = None,
     ) -> SequenceResult:  # fmt: skip
         """Filter validated queries ``Q`` (rows in driving order) on ``loaded``, with the
         vehicle's per-frame ``odometry`` (reference frames) or ``odometry_m`` (metres, with the
         map's recorded frame spacing); ``None`` entries: frames without. Refused beyond the
         per-request work budget (frames × N × (S + 8)) before any work; ``cancellation``
-        stops the filter between blocks of frames."""
+        stops the filter between blocks of frames. ``condition``: the drive's
+        (:mod:`service.core.query_conditions`)."""
         u = odometry_frames(loaded, Q.shape[0], odometry, odometry_m)
         self._check_frames(loaded, Q.shape[0])
         what = f"a drive of {Q.shape[0]} frames on map {loaded.map!r}"
         self.service.check_work(loaded, Q.shape[0], config.n_states, what=what)
         adapted = self.adapts(loaded, adapt)
+        settings = self.service.settings
         if adapted:
-            Q = adapt_drive(loaded.model, Q, self.service.settings.adaptation())
+            drive = new_drive(loaded, settings.adaptation(), condition, settings.condition_frames)
+            Q = adapt_drive(loaded.model, Q, start=drive)
+            used: str | None = drive.condition_name
+        else:
+            Q, used = standardise(loaded, Q, condition)
         raw = self.service.answer(loaded, Q, start, f"sequence_{kind}")
         model, block = cancellable(loaded.model, cancellation, config.n_states, what)
         track = sequence_localize(model, Q, config, block, odometry=u)
@@ -175,4 +184,5 @@ class SequenceLocalizer:
             config,
             (time.perf_counter() - start) * 1000.0,
             adapted,
+            used,
         )

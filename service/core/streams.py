@@ -45,6 +45,7 @@ import numpy as np
 
 from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
+from service.core.query_conditions import continue_drive, new_drive, standardise
 from service.core.sequences import chunk_of, odometry_frames
 from service.core.stream_budget import StreamLease
 from service.core.vehicle_state import VehicleState
@@ -54,6 +55,7 @@ from service.encoding.adaptation import (
     adapts,
     route_statistics,
 )
+from service.encoding.conditions import DEFAULT_INFERENCE_FRAMES
 from service.encoding.drive_scoring import drive_scorer
 from service.encoding.sequence import SequenceConfig
 from service.encoding.tracking import DriveTracker
@@ -87,6 +89,7 @@ class Frame:
     adapt: bool | None = None  # appearance adaptation; None: the stream's default
     odometry: float | None = None  # displacement since the previous frame, reference frames
     odometry_m: float | None = None  # the same in metres (the map's frame spacing converts it)
+    condition: str | None = None  # the condition named (service.core.query_conditions)
 
 
 @dataclass(slots=True)
@@ -105,6 +108,7 @@ class FrameAnswer:
     latency_ms: float
     adapted: bool = False  # standardised by the vehicle's running statistics first
     vehicle_state: str = ""  # "carried" into a new version of the same places, or "restarted"
+    condition: str = ""  # the condition the frame was standardised from ("": none)
 
 
 def same_statistics(adapter: AppearanceAdapter, model: object) -> bool:
@@ -142,8 +146,10 @@ class FleetStream:
         adapt_by_default: bool = False,
         max_adapter_bytes: int = MAX_ADAPTER_BYTES_PER_STREAM,
         lease: StreamLease | None = None,
+        condition_frames: int = DEFAULT_INFERENCE_FRAMES,
     ) -> None:
         self.service = service
+        self.condition_frames = condition_frames
         self.config = config or SequenceConfig()
         self.max_vehicles = max_vehicles
         self.max_filter_bytes = max_filter_bytes
@@ -158,6 +164,7 @@ class FleetStream:
         self._adapters: VehicleState[str, AppearanceAdapter] = VehicleState(
             max_vehicles, max_adapter_bytes, lambda a: a.nbytes, lease)  # fmt: skip
         self._adapter_changes: dict[str, str] = {}  # a vehicle's adapter carried or restarted
+        self._conditions: dict[str, str] = {}  # the condition of a vehicle's prepared frame
 
     def close(self) -> None:
         """Drop every vehicle's state and give the lease back (the stream has ended)."""
@@ -202,6 +209,10 @@ class FleetStream:
         adapted = self._adapts(frame, loaded)
         Q = self._query(loaded, frame, np.float32 if adapted else np.float64)  # float32: adapted so
         if not adapted:
+            Q, used = standardise(loaded, Q, frame.condition)
+            if used is not None:
+                with self._lock:
+                    self._conditions[frame.vehicle_id] = used
             return loaded, Q, None
         with self._lock:
             self._check_open()
@@ -216,6 +227,9 @@ class FleetStream:
         with self._lock:
             self._check_open()
             changes = {self._adapter_changes.pop(frame.vehicle_id, "")}
+            condition = self._conditions.pop(frame.vehicle_id, "")
+            if adapted and (adapter := self._adapters.get(frame.vehicle_id)) is not None:
+                condition = adapter.condition_name
             if frame.sequence_filter:
                 index, conf, used = self._track(frame, loaded, Q)
                 chunk = int(chunk_of(loaded, index))
@@ -226,7 +240,7 @@ class FleetStream:
         return FrameAnswer(
             frame.vehicle_id, frame.sequence, loaded.map, loaded.version, index, chunk, conf,
             frame.sequence_filter, raw_index, raw_conf, used,
-            (time.perf_counter() - start) * 1000.0, adapted, state,
+            (time.perf_counter() - start) * 1000.0, adapted, state, condition,
         )  # fmt: skip
 
     def _check_open(self) -> None:
@@ -254,11 +268,18 @@ class FleetStream:
                       f"map {loaded.map!r} version {loaded.version}")  # fmt: skip
 
     def _adapter(self, frame: Frame, loaded: LoadedModel) -> AppearanceAdapter:
+        fresh: list[bool] = []
+
+        def start() -> AppearanceAdapter:
+            fresh.append(True)
+            return new_drive(loaded, self.adaptation, frame.condition, self.condition_frames)
+
         adapter = self._adapters.current(
-            frame.vehicle_id, loaded,
-            lambda: AppearanceAdapter.for_model(loaded.model, self.adaptation), restart=frame.reset,
+            frame.vehicle_id, loaded, start, restart=frame.reset,
             carry=lambda a: same_statistics(a, loaded.model),
         )  # fmt: skip
+        if not fresh:
+            continue_drive(adapter, loaded, frame.condition)
         if self._adapters.change:  # answered by finish(), after other vehicles' prepare()
             self._adapter_changes[frame.vehicle_id] = self._adapters.change
         return adapter

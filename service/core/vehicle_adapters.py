@@ -39,7 +39,9 @@ from service.core.localization import LocalizationService, LocalizeResult
 from service.core.model_store import LoadedModel
 from service.core.streams import MAX_VEHICLE_ID
 from service.core.vehicle_state import VehicleState
+from service.core.query_conditions import continue_drive, new_drive
 from service.encoding.adaptation import AdaptationConfig, AppearanceAdapter, adapts
+from service.encoding.conditions import DEFAULT_INFERENCE_FRAMES
 from service.errors import InvalidInputError
 
 MAX_VEHICLES = 10_000
@@ -57,8 +59,10 @@ class VehicleAdapters:
     """Thread-safe LRU of ``(map, vehicle_id, vehicle_key)`` → adapter."""
 
     def __init__(self, config: AdaptationConfig | None = None, max_vehicles: int = MAX_VEHICLES,
-                 max_bytes: int = MAX_BYTES) -> None:  # fmt: skip
+                 max_bytes: int = MAX_BYTES,
+                 condition_frames: int = DEFAULT_INFERENCE_FRAMES) -> None:  # fmt: skip
         self.config = config or AdaptationConfig()
+        self.condition_frames = condition_frames
         self._state: VehicleState[Key, AppearanceAdapter] = VehicleState(
             max_vehicles, max_bytes, lambda a: a.nbytes)  # fmt: skip
         self._lock = threading.Lock()
@@ -71,25 +75,35 @@ class VehicleAdapters:
         return self._state.nbytes
 
     def adapt(self, loaded: LoadedModel, vehicle_id: str, Q: np.ndarray,
-              vehicle_key: str | None = None, reset: bool = False) -> tuple[np.ndarray, str]:  # fmt: skip
+              vehicle_key: str | None = None, reset: bool = False,
+              condition: str | None = None) -> tuple[np.ndarray, str, str]:  # fmt: skip
         """``Q`` (validated rows, the vehicle's next frames in order) adapted to the earlier
         frames the vehicle sent with ``vehicle_key`` on ``loaded``'s map (``reset`` forgets
-        them first), and the key they are kept under: ``vehicle_key``, or a new one when it
-        is ``None`` (a new drive)."""
+        them first; a new drive starts from ``condition``,
+        :mod:`service.core.query_conditions`), the key they are kept under (``vehicle_key``,
+        or a new one when it is ``None``: a new drive) and the condition the drive started
+        from."""
         key = new_vehicle_key() if vehicle_key is None else vehicle_key
         digest = hashlib.sha256(key.encode()).digest()
         with self._lock:
-            adapter = self._state.current(
-                (loaded.map, vehicle_id, digest), loaded,
-                lambda: AppearanceAdapter.for_model(loaded.model, self.config), restart=reset,
-            )  # fmt: skip
-            return adapter.transform(Q), key
+            fresh: list[bool] = []
+
+            def start() -> AppearanceAdapter:
+                fresh.append(True)
+                return new_drive(loaded, self.config, condition, self.condition_frames)
+
+            adapter = self._state.current((loaded.map, vehicle_id, digest), loaded, start,
+                                          restart=reset)  # fmt: skip
+            if not fresh:
+                continue_drive(adapter, loaded, condition)
+            return adapter.transform(Q), key, adapter.condition_name
 
 
 def answer_vehicle(service: LocalizationService, adapters: VehicleAdapters, loaded: LoadedModel,
                    Q: np.ndarray, start: float, kind: str, vehicle_id: str | None,
                    adapt: bool | None, vehicle_key: str | None = None,
-                   reset: bool | None = None) -> tuple[LocalizeResult, str | None]:  # fmt: skip
+                   reset: bool | None = None,
+                   condition: str | None = None) -> tuple[LocalizeResult, str | None]:  # fmt: skip
     """Localize validated queries ``Q`` on ``loaded``, adapted to ``vehicle_id``'s earlier
     frames sent with ``vehicle_key`` when adaptation is on for it (``adapt``; unset:
     ``GRIDPLACE_DRIVE_ADAPTATION``), and the key the vehicle's statistics are kept under
@@ -107,6 +121,7 @@ def answer_vehicle(service: LocalizationService, adapters: VehicleAdapters, load
     key = None
     if vehicle_id is not None and adapts(loaded.model, adapt, service.settings.drive_adaptation,
                                          f"map {loaded.map!r} version {loaded.version}"):  # fmt: skip
-        Q, key = adapters.adapt(loaded, vehicle_id, Q, vehicle_key, bool(reset))
-    result = service.answer(loaded, Q, start, kind)
-    return (dataclasses.replace(result, adapted=True) if key else result), key
+        Q, key, used = adapters.adapt(loaded, vehicle_id, Q, vehicle_key, bool(reset), condition)
+        result = service.answer(loaded, Q, start, kind)
+        return dataclasses.replace(result, adapted=True, condition=used), key
+    return service.answer(loaded, Q, start, kind, condition), key

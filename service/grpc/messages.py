@@ -52,6 +52,7 @@ def frame(request: pb.StreamRequest) -> Frame:
         adapt=_ADAPT.get(request.adaptation),
         odometry=request.odometry if request.HasField("odometry") else None,
         odometry_m=request.odometry_m if request.HasField("odometry_m") else None,
+        condition=request.condition or None,
     )
 
 
@@ -64,7 +65,7 @@ def stream_response(a: FrameAnswer) -> pb.StreamResponse:
         index=a.index, chunk=a.chunk, confidence=a.confidence, filtered=a.filtered,
         raw_index=a.raw_index, raw_confidence=a.raw_confidence, frames_used=a.frames_used,
         latency_ms=a.latency_ms, adapted=a.adapted,
-        vehicle_state=a.vehicle_state,
+        vehicle_state=a.vehicle_state, condition=a.condition,
     )  # fmt: skip
 
 

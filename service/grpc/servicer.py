@@ -220,7 +220,8 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         except GridplaceError as exc:
             await _abort(context, exc)
         return FleetStream(self.service, self.sequence, adaptation=settings.adaptation(),
-                           adapt_by_default=settings.drive_adaptation, lease=lease)  # fmt: skip
+                           adapt_by_default=settings.drive_adaptation, lease=lease,
+                           condition_frames=settings.condition_frames)  # fmt: skip
 
     def _check_frame(self, request: pb.StreamRequest) -> int:
         """The message's size, checked against its cap."""

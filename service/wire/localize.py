@@ -48,8 +48,24 @@ def _exactly_one(model: Request, fields: tuple[str, ...]) -> None:
         )
 
 
+CONDITION_DOC = (
+    "the condition the query was taken in: a condition the version recorded from tagged "
+    "traversals (key=value tags sorted by key and joined by ',', e.g. season=winter), "
+    "'reference' (the route's own), or 'auto' (inferred from the frames). A query outside "
+    "an adapted drive (single, batch, unadapted) is standardised by its statistics; an "
+    "adapted drive (a vehicle's queries, a sequence, a stream's vehicle) starts its running "
+    "statistics from them. Unset: single queries and batches as sent; an adapted drive "
+    "infers it from its first frames (GRIDPLACE_CONDITION_FRAMES) when the version records "
+    "conditions. One the version does not record: 400 unknown_condition naming the known ones"
+)
+Condition = Annotated[str | None, Field(min_length=1, max_length=4096, description=CONDITION_DOC,
+                                        examples=["season=winter"])]  # fmt: skip
+
+
 class VehicleOptions(Request):
     """Who sends a query, for appearance adaptation (also the form fields of an image query)."""
+
+    condition: Condition = None
 
     vehicle_id: str | None = Field(
         None, min_length=1, max_length=128,
@@ -96,6 +112,7 @@ class BatchLocalizeRequest(Request):
     model_config = ConfigDict(json_schema_extra=exactly_one_of(*BATCH_FIELDS))
 
     map: MapName
+    condition: Condition = None
     descriptors: list[list[DescriptorValue]] | None = Field(None, min_length=1,
                                                   description="n rows of d floats")  # fmt: skip
     descriptors_b64: Float32Base64 | None = Field(None,
@@ -117,6 +134,10 @@ class Localization(Answer):
     confidence: float = Field(ge=0.0, le=1.0)
     latency_ms: float = Field(description="server-side time in the service layer")
     adapted: bool = Field(False, description="the query was adapted to the vehicle's earlier ones")
+    condition: str | None = Field(
+        None, description="the condition the query was standardised from (a vehicle's: the "
+        "one its drive started from, named or inferred); unset when none was named or used",
+    )
     vehicle_key: str | None = Field(
         None, description="the key the vehicle's statistics are kept under (set when they "
         "were): send it with the vehicle's next query",
@@ -131,3 +152,5 @@ class BatchLocalization(Answer):
     chunk: list[int]
     confidence: list[float]
     latency_ms: float
+    condition: str | None = Field(None, description="the condition the queries were "
+                                  "standardised from (named, or inferred from them all)")  # fmt: skip

@@ -127,3 +127,7 @@ class SequenceLocalization(Answer):
     filter: dict[str, Any] = Field(description="every filter parameter the server used")
     latency_ms: float
     adapted: bool = Field(False, description="the drive's frames were adapted (appearance adaptation)")
+    condition: str | None = Field(
+        None, description="the condition the drive was standardised from (adapted: the one "
+        "its running statistics started from, named or inferred from its first frames)",
+    )

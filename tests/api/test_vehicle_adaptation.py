@@ -152,10 +152,10 @@ def test_adapters_restart_with_the_version_and_forget_the_least_recent() -> None
     v1, v2 = _loaded(1, model), _loaded(2, model)
     adapters = VehicleAdapters(max_vehicles=2)
     Q = route.query
-    first, key = adapters.adapt(v1, "a", Q[:1])
+    first, key, _ = adapters.adapt(v1, "a", Q[:1])
     a = np.vstack([first] + [adapters.adapt(v1, "a", Q[i : i + 1], key)[0] for i in range(1, 10)])
     assert np.array_equal(a, adapt_drive(model, Q[:10]))
-    restarted, same = adapters.adapt(v2, "a", Q[10:11], key)  # a new version: a fresh drive
+    restarted, same, _ = adapters.adapt(v2, "a", Q[10:11], key)  # a new version: a fresh drive
     assert np.allclose(restarted, Q[10:11], atol=1e-5) and same == key
     adapters.adapt(v1, "b", Q[:1])
     adapters.adapt(v1, "c", Q[:1])

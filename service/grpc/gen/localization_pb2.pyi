@@ -54,7 +54,7 @@ class LocalizeResponse(_message.Message):
     def __init__(self, map: _Optional[str] = ..., version: _Optional[int] = ..., matches: _Optional[_Iterable[_Union[Match, _Mapping]]] = ..., latency_ms: _Optional[float] = ...) -> None: ...
 
 class StreamRequest(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation", "odometry", "odometry_m")
+    __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation", "odometry", "odometry_m", "condition")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -65,6 +65,7 @@ class StreamRequest(_message.Message):
     ADAPTATION_FIELD_NUMBER: _ClassVar[int]
     ODOMETRY_FIELD_NUMBER: _ClassVar[int]
     ODOMETRY_M_FIELD_NUMBER: _ClassVar[int]
+    CONDITION_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -75,7 +76,8 @@ class StreamRequest(_message.Message):
     adaptation: Adaptation
     odometry: float
     odometry_m: float
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ..., adaptation: _Optional[_Union[Adaptation, str]] = ..., odometry: _Optional[float] = ..., odometry_m: _Optional[float] = ...) -> None: ...
+    condition: str
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., sequence_filter: _Optional[bool] = ..., reset_sequence: _Optional[bool] = ..., adaptation: _Optional[_Union[Adaptation, str]] = ..., odometry: _Optional[float] = ..., odometry_m: _Optional[float] = ..., condition: _Optional[str] = ...) -> None: ...
 
 class Error(_message.Message):
     __slots__ = ("code", "status", "message")
@@ -88,7 +90,7 @@ class Error(_message.Message):
     def __init__(self, code: _Optional[str] = ..., status: _Optional[str] = ..., message: _Optional[str] = ...) -> None: ...
 
 class StreamResponse(_message.Message):
-    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error", "adapted", "vehicle_state")
+    __slots__ = ("vehicle_id", "sequence", "map", "version", "index", "chunk", "confidence", "filtered", "raw_index", "raw_confidence", "frames_used", "latency_ms", "error", "adapted", "vehicle_state", "condition")
     VEHICLE_ID_FIELD_NUMBER: _ClassVar[int]
     SEQUENCE_FIELD_NUMBER: _ClassVar[int]
     MAP_FIELD_NUMBER: _ClassVar[int]
@@ -104,6 +106,7 @@ class StreamResponse(_message.Message):
     ERROR_FIELD_NUMBER: _ClassVar[int]
     ADAPTED_FIELD_NUMBER: _ClassVar[int]
     VEHICLE_STATE_FIELD_NUMBER: _ClassVar[int]
+    CONDITION_FIELD_NUMBER: _ClassVar[int]
     vehicle_id: str
     sequence: int
     map: str
@@ -119,7 +122,8 @@ class StreamResponse(_message.Message):
     error: Error
     adapted: bool
     vehicle_state: str
-    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ..., adapted: _Optional[bool] = ..., vehicle_state: _Optional[str] = ...) -> None: ...
+    condition: str
+    def __init__(self, vehicle_id: _Optional[str] = ..., sequence: _Optional[int] = ..., map: _Optional[str] = ..., version: _Optional[int] = ..., index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ..., filtered: _Optional[bool] = ..., raw_index: _Optional[int] = ..., raw_confidence: _Optional[float] = ..., frames_used: _Optional[int] = ..., latency_ms: _Optional[float] = ..., error: _Optional[_Union[Error, _Mapping]] = ..., adapted: _Optional[bool] = ..., vehicle_state: _Optional[str] = ..., condition: _Optional[str] = ...) -> None: ...
 
 class ListMapsRequest(_message.Message):
     __slots__ = ()
