@@ -8,7 +8,9 @@ from __future__ import annotations
 import asyncio
 import base64
 import io
+import json
 import time
+from pathlib import Path
 from typing import Any
 
 import grpc
@@ -147,3 +149,32 @@ def test_a_stream_vehicle_infers_or_names_its_condition(seasons: dict[str, Any],
     assert bad.error.code == "unknown_condition" and bad.error.status == "INVALID_ARGUMENT"
     assert "season=winter" in bad.error.message
     assert named.raw_index != ref.raw_index or named.confidence != ref.confidence
+
+
+def test_the_client_and_cli_name_the_condition(seasons: dict[str, Any], tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from service.cli import app
+    from service.client import GridplaceClient
+
+    url, B = seasons["url"], seasons["B"]
+    with GridplaceClient(url) as gp:
+        named = gp.localize_batch("seasons", B, condition="season=winter")
+        assert named.condition == "season=winter"
+        assert named.index == _batch(url, B, condition="season=winter")["index"]
+        assert gp.localize("seasons", B[0], condition="auto").condition == "season=winter"
+        drive = gp.localize_sequence("seasons", B[:20], condition="season=winter")
+        assert drive.condition == "season=winter" and drive.adapted
+        assert gp.localize_sequence("seasons", B[:20], odometry=[1.0] * 20,
+                                    condition="reference").condition == "reference"  # fmt: skip
+    path = tmp_path / "b.npy"
+    np.save(path, B[:3])
+    env = {"GRIDPLACE_URL": url, "COLUMNS": "200"}
+    runner = CliRunner()
+    r = runner.invoke(app, ["client", "localize", "seasons", "--npy", str(path),
+                            "--condition", "season=winter", "--json"], env=env)  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["condition"] == "season=winter"
+    r = runner.invoke(app, ["client", "localize", "seasons", "--npy", str(path),
+                            "--condition", "season=summer"], env=env)  # fmt: skip
+    assert r.exit_code == 2 and "season=winter" in r.output, r.output
