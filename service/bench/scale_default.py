@@ -14,6 +14,8 @@ and in one fresh child process each:
   lists probed) and **FAISS HNSW** (``IndexHNSWFlat``, M = 32; up to ``hnsw_max`` frames: its
   build takes too long beyond on two shared cores) on the same descriptors: build time, peak
   RSS, serialised bytes, load time and memory, latency, precision;
+- the presets of ``also`` (the ``drive`` preset from ``gridplace bench scale``): trained and
+  served as the default, beside it on the same route;
 - **exact NN** on the descriptors (measured on the first ``exact_frames`` frames, scaled
   linearly in N: one product with every stored frame).
 
@@ -231,8 +233,10 @@ def run_default_scale_bench(sizes: list[int], d: int, region_length: int, noise:
                             n_queries: int, n_single: int, batch: int, exact_frames: int,
                             out: Path, preset: str = "robust", work_dir: Path | None = None,
                             hnsw_max: int = 200_000, figure: Path | None = None,
-                            isolate: bool = True,
-                            sweep_noises: tuple[float, ...] = ()) -> dict[str, Any]:  # fmt: skip
+                            isolate: bool = True, sweep_noises: tuple[float, ...] = (),
+                            also: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
+    """``also``: other presets trained and served on the same route after ``preset`` (the
+    default), without the FAISS and exact-NN baselines again (``point["also"][name]``)."""
     points = []
     for n in sizes:
         with tempfile.TemporaryDirectory(prefix="gridplace-scale-", dir=work_dir) as tmp:
@@ -248,6 +252,16 @@ def run_default_scale_bench(sizes: list[int], d: int, region_length: int, noise:
             with console.status(f"N={n:,}: loading and querying…"):
                 serve = _in_child(_serve_child, route, registry, n_queries, n_single, batch, noise,
                                   noises, isolate=isolate)  # fmt: skip
+            others: dict[str, Any] = {}
+            for name in also:
+                other = {"encoder_preset": name, "n_jobs": 1}
+                reg = str(Path(tmp) / f"registry-{name}")
+                with console.status(f"N={n:,}: training and serving {name}…"):
+                    others[name] = {
+                        "params": other,
+                        "train": _in_child(_train_child, route, reg, other, isolate=isolate),
+                        "serve": _in_child(_serve_child, route, reg, n_queries, n_single, batch,
+                                           noise, noises, isolate=isolate)}  # fmt: skip
             faiss_res = {}
             for kind in ("ivf_sq8", "hnsw"):
                 if kind == "hnsw" and n > hnsw_max:
@@ -265,7 +279,8 @@ def run_default_scale_bench(sizes: list[int], d: int, region_length: int, noise:
                      batch_s_at_N=exact["batch"]["cpu_s"] * scale,
                      stored_bytes_at_N=exact["stored_bytes_measured"] * scale)  # fmt: skip
         points.append({"N": n, "d": d, "params": params, "generate_seconds": gen_s,
-                       "train": train, "serve": serve, "faiss": faiss_res, "exact_nn": exact})  # fmt: skip
+                       "train": train, "serve": serve, "also": others, "faiss": faiss_res,
+                       "exact_nn": exact})  # fmt: skip
         print_point(points[-1])
         _write(out, points, region_length, noise, n_queries)
     report = _write(out, points, region_length, noise, n_queries)
@@ -307,11 +322,15 @@ def print_point(p: dict[str, Any]) -> None:
                 "single", "batch/q", "P@5"):
         table.add_column(col)
     rows = []
-    for key in ("ivf", "flat"):
-        if key in s:
-            rows.append((f"gridplace {key}", f"{t['train_seconds']:.0f}", t["peak_rss_bytes"],
-                         t["artifact_bytes"], s["load_seconds"], s["rss_after_load_bytes"],
-                         s[key]["single"]["cpu_s"], s[key]["batch"]["cpu_s"], s[key]["precision_at_5"]))  # fmt: skip
+    runs = [(p["params"]["encoder_preset"], t, s),
+            *((name, o["train"], o["serve"]) for name, o in p.get("also", {}).items())]
+    for name, tr, sv in runs:
+        for key in ("ivf", "flat"):
+            if key in sv:
+                rows.append((f"gridplace {name} {key}", f"{tr['train_seconds']:.0f}",
+                             tr["peak_rss_bytes"], tr["artifact_bytes"], sv["load_seconds"],
+                             sv["rss_after_load_bytes"], sv[key]["single"]["cpu_s"],
+                             sv[key]["batch"]["cpu_s"], sv[key]["precision_at_5"]))  # fmt: skip
     for kind, f in p["faiss"].items():
         if "skipped" not in f:
             rows.append((f"FAISS {kind}", f"{f['build_seconds']:.0f}", f["peak_rss_bytes"],
@@ -323,6 +342,8 @@ def print_point(p: dict[str, Any]) -> None:
         table.add_row(name, build, f"{peak / 1e6:,.0f}", f"{stored / 1e6:,.1f}", f"{load:.2f}",
                       f"{added / 1e6:,.0f}", _us(single), _us(batch), f"{p5:.3f}")  # fmt: skip
     console.print(table)
-    seq = s["sequence"]
-    console.print(f"sequence filter per frame: scores {_us(seq['frame_scores']['cpu_s'])}, "
-                  f"update {_us(seq['filter_update']['cpu_s'])}")  # fmt: skip
+    for name, _, sv in runs:
+        seq = sv["sequence"]
+        console.print(f"{name}: sequence filter per frame: scores "
+                      f"{_us(seq['frame_scores']['cpu_s'])}, update "
+                      f"{_us(seq['filter_update']['cpu_s'])}")  # fmt: skip

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from service.encoding.inverted_file import default_nprobe
 
 
 def _series(pts: list[dict[str, Any]]) -> dict[str, list[tuple[int, float, float]]]:
@@ -16,18 +15,15 @@ def _series(pts: list[dict[str, Any]]) -> dict[str, list[tuple[int, float, float
     for p in pts:
         s, n = p["serve"], p["N"]
         preset = p["params"]["encoder_preset"]
-        for key in ("ivf", "flat"):
-            if key in s:
-                ivf = s["inverted_file"]
-                probe = "" if key == "flat" else f", nprobe {ivf['nprobe']}"
-                out.setdefault(f"gridplace {preset} ({key}{probe})", []).append(
-                    (n, s[key]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
-        sweep = s.get("nprobe_sweep")
-        if sweep:  # the default nprobe of today's rule, where the sweep measured it
-            probe = default_nprobe(int(sweep["nlist"]))
-            nearest = min(sweep["probes"], key=lambda v: abs(v - probe))
-            out.setdefault(f"gridplace {preset} (ivf, default nprobe)", []).append(
-                (n, sweep["latency"][str(nearest)]["single"]["cpu_s"], p["train"]["artifact_bytes"]))
+        runs = [(preset, p["train"], s),
+                *((name, o["train"], o["serve"]) for name, o in p.get("also", {}).items())]
+        for name, train, sv in runs:
+            for key in ("ivf", "flat"):
+                if key in sv:
+                    ivf = sv["inverted_file"]
+                    probe = "" if key == "flat" or ivf is None else f", nprobe {ivf['nprobe']}"
+                    out.setdefault(f"gridplace {name} ({key}{probe})", []).append(
+                        (n, sv[key]["single"]["cpu_s"], train["artifact_bytes"]))
         for kind, f in p["faiss"].items():
             if "skipped" not in f:
                 out.setdefault(f"FAISS {kind}", []).append(

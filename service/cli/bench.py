@@ -118,6 +118,9 @@ def bench_scale(
     hnsw_max: Annotated[int, typer.Option(help="largest N FAISS HNSW is built for")] = 200_000,
     sweep_noise: Annotated[str, typer.Option(
         help="default preset: query noises of the nprobe sweep, comma-separated")] = "0.3,4.0",
+    also: Annotated[str, typer.Option(
+        help="default preset: other presets trained and served on the same route, "
+             "comma-separated (empty: none)")] = "drive",
     work_dir: Annotated[Path | None, typer.Option(help="where the route files go (temporary)")] = None,
     figure: Annotated[Path | None, typer.Option(help="PNG of query time (and bytes) against N")] = Path("query-time.png"),
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale.json"),
@@ -136,7 +139,8 @@ def bench_scale(
     run_default_scale_bench([int(s) for s in sizes.split(",")], n_features, region_length,
                             query_noise, queries, single, batch, exact_frames, out, preset,
                             work_dir, hnsw_max, figure,
-                            sweep_noises=tuple(float(v) for v in sweep_noise.split(",") if v))  # fmt: skip
+                            sweep_noises=tuple(float(v) for v in sweep_noise.split(",") if v),
+                            also=tuple(v for v in also.split(",") if v))  # fmt: skip
 
 
 @app.command("scale-real")

@@ -17,7 +17,7 @@ def test_default_scale_bench_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     run_default_scale_bench([2000], d=32, region_length=500, noise=0.3, n_queries=100,
                             n_single=5, batch=50, exact_frames=1000, out=out,
                             work_dir=tmp_path, figure=fig, isolate=False,
-                            sweep_noises=(0.3, 2.0))  # fmt: skip
+                            sweep_noises=(0.3, 2.0), also=("drive",))  # fmt: skip
     (point,) = json.loads(out.read_text())["points"]
     train, serve, exact = point["train"], point["serve"], point["exact_nn"]
     assert train["artifact_bytes"] > 0 and train["peak_rss_bytes"] > 0
@@ -31,6 +31,11 @@ def test_default_scale_bench_smoke(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     widest = sweep["noises"]["2.0"][str(max(sweep["probes"]))]
     assert 0.0 <= widest["precision_at_5"] <= 1.0 and 0.0 < widest["agrees_with_flat"] <= 1.0
     assert all(0 < v["share_scanned"] <= 1 for v in sweep["latency"].values())
+    drive = point["also"]["drive"]  # the drive preset on the same route: its code, no ivf
+    assert drive["train"]["artifact_bytes"] < train["artifact_bytes"]
+    assert drive["serve"]["inverted_file"] is None and "ivf" not in drive["serve"]
+    assert drive["serve"]["flat"]["single"]["cpu_s"] > 0
+    assert drive["serve"]["sequence"]["frame_scores"]["cpu_s"] > 0
     for kind in ("ivf_sq8", "hnsw"):
         faiss = point["faiss"][kind]
         assert faiss["index_bytes"] > 0 and 0.0 <= faiss["precision_at_5"] <= 1.0
