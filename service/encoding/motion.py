@@ -2,12 +2,13 @@
 two query frames.
 
 - **speeds**: a grid ``min_speed … max_speed`` by ``speed_step`` in reference frames per query
-  frame (mirrored to negative speeds with ``reverse``), plus a **stopped** state (speed 0) when
-  ``stop_probability > 0``. Each frame the speed stays, or with probability ``speed_change``
-  moves to a neighbouring grid speed (a random walk with reflecting ends: the vehicle
-  accelerates gradually); a moving vehicle stops with ``stop_probability`` and a stopped one
-  moves on with ``start_probability`` (to any speed of either direction); with ``reverse``,
-  ``direction_change`` flips the sign.
+  frame (mirrored to negative speeds with ``reverse``), plus a **stopped** state (speed 0) per
+  direction when ``stop_probability > 0``. Each frame the speed stays, or with probability
+  ``speed_change`` moves to a neighbouring grid speed (a random walk with reflecting ends: the
+  vehicle accelerates gradually); a moving vehicle stops with ``stop_probability`` and a
+  stopped one moves on with ``start_probability``, to any speed of the direction it was
+  driving in (a vehicle that waits at a light drives on the way it came); with ``reverse``,
+  ``direction_change`` flips the sign (and a stopped vehicle's direction).
 - **motion**: a state at frame ``i`` with speed ``v`` moves to ``i + v`` (a fractional ``v``
   splits its mass between the two nearest frames). Mass driven off the array's ends leaves it.
 - **odometry** (path integration): a frame that comes with a measured displacement ``u``
@@ -37,12 +38,13 @@ class MotionModel:
         self.config = config
         v = config.speeds()
         n_dir = v.size // 2 if config.reverse else v.size  # speeds per direction
-        self.stop: int | None = None
-        if config.stop_probability > 0:  # a stopped state, between the two directions
-            self.stop = n_dir if config.reverse else 0
-            v = np.insert(v, self.stop, 0.0)
+        # a stopped state per direction, between the two directions' grids: [−, stop−, stop+, +]
+        self.stops: list[int] = []
+        if config.stop_probability > 0:
+            self.stops = [n_dir, n_dir + 1] if config.reverse else [0]
+            v = np.insert(v, n_dir if config.reverse else 0, [0.0] * len(self.stops))
         self.speeds = v  # ascending: rows that share the integer part of a speed are contiguous
-        first = [0, n_dir + (self.stop is not None)] if config.reverse else [v.size - n_dir]
+        first = [0, n_dir + len(self.stops)] if config.reverse else [v.size - n_dir]
         self.blocks = [slice(lo, lo + n_dir) for lo in first]  # each direction's speed grid
         whole = np.floor(v).astype(np.int64)
         frac = (v - whole).astype(np.float32)
@@ -128,19 +130,17 @@ class MotionModel:
                 else:
                     dst += src
                     dst += src
-        if self.stop is not None:
-            stopped = np.multiply(post[self.stop], np.float32(scale), out=tmp[self.stop])
-            moving = sum(out[block].sum(axis=0) for block in self.blocks)
-            go, halt = cfg.start_probability, cfg.stop_probability
-            share = stopped * np.float32(go / sum(b.stop - b.start for b in self.blocks))
-            for block in self.blocks:
-                out[block] *= np.float32(1.0 - halt)
-                out[block] += share
-            np.multiply(stopped, np.float32(1.0 - go), out=out[self.stop])
-            out[self.stop] += moving * np.float32(halt)
+        go, halt = cfg.start_probability, cfg.stop_probability
+        for stop, block in zip(self.stops, self.blocks, strict=False):  # each direction's stop
+            stopped = np.multiply(post[stop], np.float32(scale), out=tmp[stop])
+            moving = out[block].sum(axis=0)
+            out[block] *= np.float32(1.0 - halt)
+            out[block] += stopped * np.float32(go / (block.stop - block.start))
+            np.multiply(stopped, np.float32(1.0 - go), out=out[stop])
+            out[stop] += moving * np.float32(halt)
         if cfg.reverse:
             r = cfg.direction_change
-            np.multiply(out[::-1], np.float32(r), out=tmp)  # speed v ↔ −v: the grid is mirrored
+            np.multiply(out[::-1], np.float32(r), out=tmp)  # v ↔ −v, stop− ↔ stop+: mirrored
             out *= np.float32(1.0 - r)
             out += tmp
 

@@ -111,9 +111,11 @@ class SequenceConfig(BaseModel):
 
     @property
     def n_states(self) -> int:
-        """Rows of a filter's state: grid speeds (both directions with ``reverse``), plus the
-        stopped state when ``stop_probability > 0``; one update costs ``O(n_states · N)``."""
-        return int(self.speeds().size) + int(self.stop_probability > 0)
+        """Rows of a filter's state: grid speeds (both directions with ``reverse``), plus a
+        stopped state per direction when ``stop_probability > 0``; one update costs
+        ``O(n_states · N)``."""
+        stops = (2 if self.reverse else 1) if self.stop_probability > 0 else 0
+        return int(self.speeds().size) + stops
 
     def speeds(self) -> np.ndarray:
         """The speed grid (ascending; negative speeds too with ``reverse``)."""

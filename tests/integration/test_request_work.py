@@ -24,7 +24,8 @@ from service.registry import Registry
 pytestmark = pytest.mark.slow
 N, D = 20_000, 16
 WORST = {"min_speed": 0, "max_speed": 50, "speed_step": 50 / 63, "reverse": True,
-         "stop_probability": 0.1}  # 2 × 64 speeds + the stopped state: S = 129  # fmt: skip
+         "stop_probability": 0.1}  # 2 × 64 speeds + a stopped state per direction: S = 130  # fmt: skip
+S_WORST = 130
 BUDGET = 1_000_000_000  # GRIDPLACE_MAX_REQUEST_WORK's default, 1,000 million units
 
 
@@ -54,7 +55,7 @@ def _drive(url: str, rows: np.ndarray, timeout: float = 120, **options: object) 
 
 def test_the_worst_drive_beyond_the_budget_is_413_before_any_work(server: ServerProcess,
                                                                   queries: np.ndarray) -> None:  # fmt: skip
-    frames = BUDGET // (N * (129 + 8)) + 1  # 365 frames: 1.0 × 10⁹ units
+    frames = BUDGET // (N * (S_WORST + 8)) + 1  # 363 frames: 1.0 × 10⁹ units
     cpu = psutil.Process(server.proc.pid)
     before = cpu.cpu_times()
     start = time.monotonic()
@@ -62,8 +63,8 @@ def test_the_worst_drive_beyond_the_budget_is_413_before_any_work(server: Server
     took = time.monotonic() - start
     assert r.status_code == 413, r.text
     assert "GRIDPLACE_MAX_REQUEST_WORK" in r.json()["message"]
-    assert "(8 + 129 states)" in r.json()["message"]
-    assert r.json()["details"] == {"work": frames * N * 137, "budget": BUDGET}
+    assert f"(8 + {S_WORST} states)" in r.json()["message"]
+    assert r.json()["details"] == {"work": frames * N * (S_WORST + 8), "budget": BUDGET}
     spent = sum(cpu.cpu_times()[:2]) - sum(before[:2])
     assert took < 5 and spent < 1.0, (took, spent)  # refused, not computed
     assert _drive(server.url, queries[: frames - 300], **WORST).status_code == 200
@@ -82,7 +83,7 @@ def test_a_batch_beyond_the_budget_is_413(server: ServerProcess, queries: np.nda
 
 
 def test_a_drive_stops_when_its_client_goes_away(server: ServerProcess, queries: np.ndarray) -> None:
-    frames = BUDGET // (N * (129 + 8))  # the most the budget allows: seconds of CPU
+    frames = BUDGET // (N * (S_WORST + 8))  # the most the budget allows: seconds of CPU
     proc = psutil.Process(server.proc.pid)
     with pytest.raises(httpx.ReadTimeout):
         _drive(server.url, queries[:frames], timeout=1.0, **WORST)  # the client leaves at 1 s
