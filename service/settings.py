@@ -32,6 +32,10 @@ class Settings(BaseSettings):
         512, ge=1, description="largest admin upload (MiB), and the most memory its descriptors "
         "may take as float32 once decompressed",
     )  # fmt: skip
+    max_retrain_mb: int = Field(
+        4096, ge=1, description="most float32 descriptors (MiB) a retrain of a version's "
+        "traversals gathers in memory",
+    )  # fmt: skip
     max_public_body_mb: int = Field(
         16, ge=1, description="largest body of a public REST request (localize) and of a gRPC "
         "Localize message (MiB)",

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
 from pydantic import Field
 from pydantic.json_schema import SkipJsonSchema
 from starlette.datastructures import FormData, UploadFile
@@ -21,6 +22,7 @@ from service.api.schemas import (
     body_doc,
 )
 from service.core.appends import append_traversals
+from service.core.retrains import retrain_traversals
 from service.core.localization import LocalizationService
 from service.core.traversal_upload import UploadedFile
 from service.errors import RequestValidationError
@@ -134,9 +136,10 @@ async def upload_route(
 
 @router.post("/maps/{name}/versions/{version}/traversals", status_code=201, response_model=Version,
              summary="Append traversals to a version: a new version, without retraining",
+             responses={202: {"model": Job, "description": "retrain=true: the training job"}},
              openapi_extra=body_doc(None, APPEND_FORM))  # fmt: skip
 async def append(request: Request, response: Response, name: MapPath,
-                 version: VersionPath) -> Version:  # fmt: skip
+                 version: VersionPath) -> Version | JSONResponse:  # fmt: skip
     """A multipart form: each traversal as ``file`` (descriptors of the version's width, or
     an image archive its extractor reads), optionally one ``places`` file per traversal (the
     place of every row; without one, row ``i`` is place ``i``), condition tags ``tag`` (repeat
@@ -144,9 +147,17 @@ async def append(request: Request, response: Response, name: MapPath,
     and ``activate``. The version's class means take the new rows, in time proportional to
     them, and the result is published as the map's next immutable version, recording every
     traversal it was built from and its tags (``extra.traversals``); the version appended to
-    is unchanged. 409 ``retrain_required`` when an extension needs new periods."""
+    is unchanged. 409 ``retrain_required`` when an extension needs new periods. With
+    ``retrain=true``: 202 with a training job over every traversal of the version and these
+    (:mod:`service.core.retrains`) instead."""
     async with request.form() as form:
         routes, places, options = _append_form(form)
+        if options.retrain:
+            job = await run_in_threadpool(functools.partial(
+                retrain_traversals, _service(request), name, version, _uploaded(routes),
+                _uploaded(places), options))  # fmt: skip
+            return JSONResponse(Job.model_validate(job).model_dump(mode="json"), status_code=202,
+                                headers={"Location": f"/v1/jobs/{job.id}"})  # fmt: skip
         info = await run_in_threadpool(functools.partial(
             append_traversals, _service(request), name, version, _uploaded(routes),
             _uploaded(places), options))  # fmt: skip

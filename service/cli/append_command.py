@@ -8,7 +8,17 @@ from typing import Annotated
 
 import typer
 
-from service.cli.client_commands import AsJson, Timeout, Token, Url, _client, _print_json, console
+from service.cli.client_commands import (
+    AsJson,
+    Timeout,
+    Token,
+    Url,
+    _client,
+    _print_json,
+    _report_job,
+    _wait,
+    console,
+)
 from service.cli.console import plural
 from service.cli.errors import cli_errors
 
@@ -31,13 +41,26 @@ def append(
         "--whiten/--no-whiten", help="learn the traversals' within-place scatter (default: "
         "where the model allows it)", show_default=False)] = None,
     activate: Annotated[bool, typer.Option(help="serve the new version at once")] = False,
+    retrain: Annotated[bool, typer.Option(
+        "--retrain", help="instead, train a new version as a job from every traversal of V "
+        "and these (an extension the code's periods cannot label), and follow the job")] = False,
+    wait_timeout: Annotated[float, typer.Option(help="seconds to follow a --retrain job")] = 3600.0,
     url: Url = None,
     token: Token = None,
     timeout: Timeout = 300.0,
     as_json: AsJson = False,
 ) -> None:
     """Append TRAVERSAL(s) to version V of MAP without retraining: a new version (exit 2 on
-    bad input: another width, places out of range, a tag that is not KEY=VALUE)."""
+    bad input: another width, places out of range, a tag that is not KEY=VALUE). With
+    --retrain: a training job over every traversal instead (exit 2 if it fails)."""
+    if retrain:
+        with _client(url, token, timeout) as gp:
+            with console.status(f"uploading {', '.join(t.name for t in traversals)} to retrain"):
+                job = gp.retrain_traversals(map_name, version, traversals if len(traversals) > 1
+                                            else traversals[0], places=places, tags=tag or [],
+                                            extend=extend)  # fmt: skip
+            _report_job(gp, _wait(gp, job, wait_timeout), as_json)
+        return
     with _client(url, token, timeout) as gp:
         with console.status(f"appending {', '.join(t.name for t in traversals)}"):
             v = gp.append_traversals(map_name, version, traversals if len(traversals) > 1

@@ -224,6 +224,20 @@ def bench_append(
     run_append_bench(ref, qry, out, half)
 
 
+@app.command("conditions")
+def bench_conditions(
+    ref: Annotated[Path, typer.Option(help="summer descriptors (.npy), frame-aligned with --qry")],
+    qry: Annotated[Path, typer.Option(help="winter descriptors (.npy)")],
+    half: Annotated[int, typer.Option(help="first frame of the test half; frames before it are appended")] = 1788,
+    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-conditions.json"),
+) -> None:
+    """Winter half A appended to a summer map tagged season=winter; winter half B queried
+    with no condition, the condition named and inferred (single frames and drives)."""
+    from service.bench.conditions_bench import run_conditions_bench
+
+    run_conditions_bench(ref, qry, out, half)
+
+
 from service.cli.bench_drive import bench_drive
 from service.cli.bench_drive_scaling import bench_drive_scaling
 from service.cli.bench_paper import bench_paper

@@ -268,9 +268,10 @@ def upload_route(
 def append_traversals(
     map_name: str, version: int, traversals: RouteSource | Sequence[RouteSource],
     options: AppendOptions, places: Sequence[RouteSource] | None = None,
-) -> Call[Version]:  # fmt: skip
+) -> Call[Any]:  # fmt: skip
     """One traversal file (or array), or several, each optionally with its place index, and
-    the append options as form fields."""
+    the append options as form fields; answered by the new version, or with ``retrain`` by
+    the training job."""
     routes = list(traversals) if isinstance(traversals, list | tuple) else [traversals]
     if not routes:
         raise EmptyInputError("append_traversals needs at least one traversal")
@@ -291,21 +292,27 @@ def append_traversals(
             fh.close()
         raise
     path = f"/v1/maps/{_seg(map_name)}/versions/{int(version)}/traversals"
-    return Call("POST", path, _reader(Version), admin=True,
+    return Call("POST", path, _reader(Job if options.retrain else Version), admin=True,
                 kwargs={"files": files, "data": options.form()}, files=opened)  # fmt: skip
 
 
 def append_options(tags: Sequence[str], extend: bool, whiten: bool | None,
-                   activate: bool) -> AppendOptions:  # fmt: skip
+                   activate: bool, retrain: bool = False) -> AppendOptions:  # fmt: skip
     """Validated append options (a bad tag is an error naming it before anything is sent)."""
     parse_tags(list(tags))
-    fields: dict[str, Any] = {"tag": list(tags), "extend": extend, "activate": activate}
+    fields: dict[str, Any] = {"tag": list(tags), "extend": extend}
+    if activate:
+        fields["activate"] = activate
     if whiten is not None:
         fields["whiten"] = whiten
+    if retrain:
+        fields["retrain"] = True
     try:
-        return AppendOptions(**fields)
+        options = AppendOptions(**fields)
     except ValidationError as exc:
         raise InvalidParameterError(f"invalid append options: {_messages(exc)}") from exc
+    options.check_retrain()
+    return options
 
 
 def _upload_part(source: RouteSource, filename: str | None, default: str,

@@ -210,7 +210,19 @@ class GridplaceClient:
         traversal; ``tags``: condition tags ``key=value``; ``extend``: places beyond the route
         extend it; ``activate``: serve it at once."""
         opts = calls.append_options(tags, extend, whiten, activate)
-        return self._send(calls.append_traversals(map, version, traversals, opts, places),
+        return self._send(calls.append_traversals(map, version, traversals, opts, places),  # type: ignore[no-any-return]
+                          timeout=self.upload_timeout)  # fmt: skip
+
+    def retrain_traversals(
+        self, map: str, version: int, traversals: RouteSource | Sequence[RouteSource], *,
+        places: Sequence[RouteSource] | None = None, tags: Sequence[str] = (),
+        extend: bool = False,
+    ) -> Job:  # fmt: skip
+        """What an append cannot do (an extension its code's periods cannot label): a
+        training job over every traversal ``version`` was built from plus these (as
+        :meth:`append_traversals` takes them); follow it with :meth:`wait_for_job`."""
+        opts = calls.append_options(tags, extend, None, False, retrain=True)
+        return self._send(calls.append_traversals(map, version, traversals, opts, places),  # type: ignore[no-any-return]
                           timeout=self.upload_timeout)  # fmt: skip
 
     def get_job(self, job_id: str) -> Job:

@@ -31,12 +31,13 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from service.core.traversal_upload import UploadedFile, read_places
-from service.core.uploads import parse_route
+from service.core.uploads import parse_route, relative_to, store_array, store_descriptors
 from service.encoding.conditions import condition_key
 from service.errors import (
     DimensionMismatchError,
@@ -51,11 +52,22 @@ from service.wire.appends import AppendOptions
 if TYPE_CHECKING:
     from service.core.localization import LocalizationService
 
-def append_traversals(
-    service: LocalizationService, name: str, version: int, files: Sequence[UploadedFile],
-    places: Sequence[UploadedFile], options: AppendOptions,
-) -> VersionInfo:  # fmt: skip
-    """Publish ``version`` of map ``name`` with ``files`` appended as the map's next version."""
+@dataclass(frozen=True)
+class NewTraversals:
+    """The validated traversals of an append (or a retrain) and the version they go to."""
+
+    base: VersionInfo
+    arrays: list[np.ndarray]  # float32 (rows, d), one per traversal
+    index: list[np.ndarray]  # each traversal's place index; [] when none was sent
+    tags: dict[str, str]
+
+
+def read_traversals(service: LocalizationService, name: str, version: int,
+                    files: Sequence[UploadedFile], places: Sequence[UploadedFile],
+                    options: AppendOptions) -> NewTraversals:  # fmt: skip
+    """The traversals of an append form, checked against ``version`` of map ``name``: one
+    ``file`` per traversal of the version's width (descriptors, or images its extractor reads),
+    optionally a place index each, within the upload limit."""
     registry = service.registry
     tags = options.tags()
     base = registry.get_version(name, version)  # 404 before anything is read
@@ -91,12 +103,23 @@ def append_traversals(
         used += X.nbytes
         arrays.append(X)
     index = [read_places(p, arrays[i].shape[0], limit - used) for i, p in enumerate(places)]
+    return NewTraversals(base, arrays, index, tags)
+
+
+def append_traversals(
+    service: LocalizationService, name: str, version: int, files: Sequence[UploadedFile],
+    places: Sequence[UploadedFile], options: AppendOptions,
+) -> VersionInfo:  # fmt: skip
+    """Publish ``version`` of map ``name`` with ``files`` appended as the map's next version."""
+    registry = service.registry
+    new = read_traversals(service, name, version, files, places, options)
+    base, arrays, index, tags = new.base, new.arrays, new.index, new.tags
     model = registry.load_model(name, version)
     n_before = int(model.n_frames_)
     if not hasattr(model, "partial_fit"):
         raise InvalidInputError(
             f"map {name!r} version {version} is a {base.kind}, which takes no appended "
-            "traversals; upload every traversal as a new route instead", kind=base.kind,
+            "traversals; retrain it with them as a job (retrain=true)", kind=base.kind,
         )  # fmt: skip
     conditions = _validation(model, base, arrays, index, tags)
     start = time.perf_counter()
@@ -107,12 +130,12 @@ def append_traversals(
                           condition=condition_key(tags))  # fmt: skip
     except RetrainRequiredError as exc:
         raise RetrainRequiredError(
-            f"{exc.message}: upload every traversal of the extended route as a new route "
-            f"(POST /v1/maps/{name}/routes, one 'file' and 'places' per traversal), which "
-            "trains it as a job", **exc.details,
+            f"{exc.message}: send the same form with retrain=true (gridplace client append "
+            "--retrain), which trains a new version from every traversal of this one and "
+            "these as a job", **exc.details,
         ) from exc
     seconds = time.perf_counter() - start
-    record = _lineage(base, arrays, index, tags)
+    record = _lineage(base, arrays, index, tags, keep_rows(service.settings.data_dir, arrays, index))
     extra = {"appended_to": version, "traversals": record["traversals"], "append": {
         "seconds": round(seconds, 4), "extended_from": n_before if model.n_frames_ > n_before else None,
         "whitened": getattr(model, "whitening_", None) is not None,
@@ -143,9 +166,23 @@ def _validation(model: Any, base: VersionInfo, arrays: list[np.ndarray], index: 
     return out
 
 
+def keep_rows(data_dir: Path, arrays: list[np.ndarray], index: list[np.ndarray]) -> list[dict[str, str | None]]:
+    """Store each appended traversal's rows (and place index) under ``uploads/``, content
+    addressed and atomically as route uploads are, so that a retrain can read them again;
+    their paths relative to ``data_dir``."""
+    out: list[dict[str, str | None]] = []
+    for i, X in enumerate(arrays):
+        rows = store_descriptors(data_dir, X, "descriptors").path
+        places = store_array(data_dir, index[i], np.int64)[0] if index else None
+        out.append({"rows": relative_to(rows, data_dir),
+                    "places": None if places is None else relative_to(places, data_dir)})  # fmt: skip
+    return out
+
+
 def _lineage(base: VersionInfo, arrays: list[np.ndarray], index: list[np.ndarray],
-             tags: dict[str, str]) -> dict[str, Any]:  # fmt: skip
-    """The traversals the new version is built from, and a content hash covering them all."""
+             tags: dict[str, str], stored: list[dict[str, str | None]]) -> dict[str, Any]:  # fmt: skip
+    """The traversals the new version is built from (where their rows are kept), and a
+    content hash covering them all."""
     earlier = list(base.extra.get("traversals") or [{
         "version": base.version, "n_traversals": base.n_traversals,
         "content_sha256": base.content_sha256, "places": [0, base.n_frames - 1],
@@ -161,6 +198,6 @@ def _lineage(base: VersionInfo, arrays: list[np.ndarray], index: list[np.ndarray
         digest = sha.hexdigest()
         h.update(digest.encode())
         earlier.append({"rows": int(rows.shape[0]), "places": [int(places.min()), int(places.max())],
-                        "content_sha256": digest, "tags": dict(tags),
+                        "content_sha256": digest, "tags": dict(tags), "stored": stored[i],
                         "appended_to": base.version, "appended_at": now})  # fmt: skip
     return {"traversals": earlier, "content_sha256": h.hexdigest()}

@@ -8,7 +8,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
@@ -18,6 +17,7 @@ from service.core.model_store import LoadedModel, ModelStore
 from service.core.query_conditions import standardise
 from service.core.request_work import check_request
 from service.core.traversal_upload import UploadedFile, parse_traversals, store_traversals
+from service.core.uploads import relative_to
 from service.encoding import ModelParams, check_descriptors, check_route
 from service.errors import (
     ArtifactError,
@@ -78,14 +78,6 @@ def decode_float32(data: bytes, n_features: int | None, what: str = "body") -> n
             expected=n_features, got=int(flat.size),
         )  # fmt: skip
     return flat.reshape(-1, n_features)
-
-
-def _relative(path: Path, data_dir: Path) -> str:
-    """``path`` relative to ``data_dir`` when inside it (a job's files move with it)."""
-    try:
-        return str(path.resolve().relative_to(data_dir.resolve()))
-    except ValueError:
-        return str(path.resolve())
 
 
 class LocalizationService:
@@ -318,7 +310,7 @@ class LocalizationService:
             config = image_config.model_dump()
         data_dir = self.settings.data_dir
         stored = store_traversals(data_dir, tr, source_kind)  # only valid data lands
-        places_file = None if stored.places is None else _relative(stored.places, data_dir)
+        places_file = None if stored.places is None else relative_to(stored.places, data_dir)
         source = RouteSource(content_sha256=stored.content_sha256, n_frames=stored.n_places,
                              n_features=stored.n_features,
                              allow_dimension_change=allow_dimension_change,

@@ -197,6 +197,14 @@ class _HashingWriter:
         return self.out.write(data)
 
 
+def relative_to(path: Path, data_dir: Path) -> str:
+    """``path`` relative to ``data_dir`` when inside it (a job's files move with it)."""
+    try:
+        return str(path.resolve().relative_to(data_dir.resolve()))
+    except ValueError:
+        return str(path.resolve())
+
+
 def store_descriptors(data_dir: Path, X: np.ndarray, source_kind: str) -> StoredRoute:
     """Write ``X`` to ``data_dir/uploads/<sha256 of the .npy>.npy`` atomically (tmp, fsync,
     rename), streamed and hashed on the way: no copy of the route is made in memory."""

@@ -151,6 +151,19 @@ def fitted_conditions(X: Any, keys: Sequence[str | None] | None) -> dict[str, Co
     return out
 
 
+def conditions_of_rows(X: np.ndarray, ranges: Mapping[str, Sequence[Sequence[int]]]) -> dict[str, ConditionStats]:
+    """The conditions of a route's rows: each key's statistics over its ``[start, stop)``
+    row ranges of ``X`` (a retrain's tagged traversals)."""
+    out: dict[str, ConditionStats] = {}
+    for key, spans in ranges.items():
+        for start, stop in spans:
+            if not 0 <= start < stop <= X.shape[0]:
+                raise InvalidParameterError(f"condition {key!r} rows {start}…{stop} are not "
+                                            f"rows of the route's {X.shape[0]}")  # fmt: skip
+            out = record(out, key, np.asarray(X[start:stop]))
+    return out
+
+
 def conditions_to_arrays(conditions: Mapping[str, ConditionStats], arrays: dict[str, np.ndarray],
                          prefix: str = "") -> list[str]:  # fmt: skip
     """Add arrays ``{prefix}cond.{i}.*`` to ``arrays``; returns the keys in their order (kept

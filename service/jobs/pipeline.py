@@ -29,6 +29,7 @@ from service.encoding.chunked import (
     fit_front_end,
     plan_chunks,
 )
+from service.encoding.conditions import conditions_of_rows
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.progress import is_per_class
 from service.encoding.traversals import Traversals, check_places, chunk_rows, count_places
@@ -216,6 +217,8 @@ def train_single(data_dir: Path, job_id: str) -> int:
     route = _traversals(data_dir, spec, X)
     _validate(params, X.shape[1], [route.n_places])
     model = build_model(params).fit(route, progress=FitReporter(registry, job_id, "fit"))
+    if spec.source is not None and spec.source.conditions and hasattr(model, "conditions_"):
+        model.conditions_ = conditions_of_rows(X, spec.source.conditions)
     fit_s = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s}, part="train")
     version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s}, route.places)
@@ -355,9 +358,11 @@ def _publish(
     if registry.get_job(spec.job_id).done:  # timed out or failed meanwhile: publish nothing
         raise JobFinished(f"job {spec.job_id} finished before its version was published")
     source = spec.source
+    extra = None if source is None or source.lineage is None else {
+        "traversals": source.lineage, "retrained_from": source.retrained_from}  # fmt: skip
     info = registry.publish(
         spec.map, model, params=params.model_dump(mode="json"), extractor=spec.extractor,
-        metrics=metrics, job_id=spec.job_id,
+        metrics=metrics, job_id=spec.job_id, extra=extra,
         content_sha256=None if source is None else source.content_sha256,
         # checked at upload; a job without a recorded upload (library use) is not re-checked
         allow_dimension_change=True if source is None else source.allow_dimension_change,

@@ -37,6 +37,15 @@ class RouteSource(BaseModel):
         None, description="int64 .npy of every route row's place, relative to data_dir when "
         "inside it; None: one traversal, row i is place i",
     )  # fmt: skip
+    conditions: dict[str, list[tuple[int, int]]] = Field(
+        default_factory=dict, description="condition key → the [start, stop) row ranges of "
+        "its tagged traversals, whose statistics the trained model records (a retrain)",
+    )  # fmt: skip
+    lineage: list[dict[str, Any]] | None = Field(
+        None, description="the traversals the route was gathered from (a retrain), recorded "
+        "in the version's extra.traversals",
+    )  # fmt: skip
+    retrained_from: int | None = Field(None, description="the version a retrain started from")
 
 
 class JobSpec(BaseModel):

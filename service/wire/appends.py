@@ -56,6 +56,19 @@ class AppendOptions(Request):
         "space by it (unset: where the model allows it, one class per place)",
     )  # fmt: skip
     activate: bool = Field(False, description="activate the new version at once")
+    retrain: bool = Field(
+        False, description="instead of appending, train a new version as a job from every "
+        "traversal the version was built from plus these (what an extension its code's "
+        "periods cannot label needs): 202 with the job (GET /v1/jobs/{id}); its version is "
+        "activated as any trained version is (POST …/activate). Not with whiten or activate",
+    )  # fmt: skip
+
+    def check_retrain(self) -> None:
+        """A retrain takes tags and extend; whiten and activate belong to appends."""
+        given = [k for k in ("whiten", "activate") if k in self.model_fields_set]
+        if self.retrain and given:
+            raise InvalidInputError(f"{', '.join(given)} applies to appends, not to retrain=true",
+                                    fields=given)  # fmt: skip
 
     def tags(self) -> dict[str, str]:
         """The tags as a mapping (a key given twice is an error naming it: 400)."""
@@ -66,7 +79,7 @@ class AppendOptions(Request):
         out: dict[str, str | list[str]] = {}
         if self.tag:
             out["tag"] = list(self.tag)
-        for key in ("extend", "whiten", "activate"):
+        for key in ("extend", "whiten", "activate", "retrain"):
             value = getattr(self, key)
             if value is not None and key in self.model_fields_set:
                 out[key] = str(value).lower()

@@ -275,7 +275,59 @@ def test_an_extension_the_periods_cannot_label_needs_a_retrain(tmp_path: Path) -
             assert refused.status_code == 409, refused.text
             body = refused.json()
             assert body["error"] == "retrain_required" and "full retrain" in body["message"]
-            assert "/v1/maps/res/routes" in body["message"]
-        assert [v.version for v in Registry(srv.data_dir).list_versions("res")] == [1, 2]
+            assert "retrain=true" in body["message"]
+            assert [v.version for v in Registry(srv.data_dir).list_versions("res")] == [1, 2]
+            # the same form with retrain=true: a job over v2's traversals (v1's upload and the
+            # kept rows of its append) and these, with periods chosen for 72 places
+            job = _append(c, "res", 2, more[3:], np.arange(63, 72), extend="true",
+                          retrain="true", tag="season=winter")  # fmt: skip
+            assert job.status_code == 202, job.text
+            assert job.headers["location"] == f"/v1/jobs/{job.json()['id']}"
+            done = _wait_job(c, job.json()["id"])
+            assert done["state"] == "succeeded", done
+            v3 = c.get(f"/v1/maps/res/versions/{done['version']}", headers=AUTH).json()
+            assert v3["n_frames"] == 72 and v3["n_traversals"] == 3 and v3["job_id"] == done["id"]
+            assert v3["extra"]["retrained_from"] == 2 and not v3["active"]
+            lineage = v3["extra"]["traversals"]
+            assert [t.get("tags") for t in lineage] == [{}, {}, {"season": "winter"}]
+            assert all("stored" in t for t in lineage)
+            assert c.post("/v1/maps/res/versions/3/activate", headers=AUTH).status_code == 200
+            deadline = time.monotonic() + 20
+            while c.get("/v1/maps/res", headers=AUTH).json().get("serving_version") != 3:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+            named = c.post("/v1/localize/batch", json={"map": "res", "condition": "season=winter",
+                                                       "descriptors": more[3:].tolist()})  # fmt: skip
+            assert named.status_code == 200 and named.json()["condition"] == "season=winter"
+            for bad in ({"whiten": "true"}, {"activate": "true"}):
+                r = _append(c, "res", 3, more[:2], np.arange(2), retrain="true", **bad)
+                assert r.status_code == 400 and "retrain" in r.json()["message"], r.text
+        assert [v.version for v in Registry(srv.data_dir).list_versions("res")] == [1, 2, 3]
+    finally:
+        srv.stop()
+
+
+def test_a_retrain_needs_every_traversal_kept(tmp_path: Path) -> None:
+    """A version published without a training job keeps no descriptors to retrain from: 409
+    naming it; the CLI's --retrain reports it with exit 2."""
+    from typer.testing import CliRunner
+
+    from service.cli import app
+    from service.encoding import ModelParams, build_model
+    from service.registry import Registry
+
+    R = smooth_route(60, D, seed=5).reference
+    Registry(tmp_path / "lib").publish("lib", build_model(ModelParams()).fit(R), params={},
+                                       extractor=None, metrics={}, activate=True)  # fmt: skip
+    srv = ServerProcess(tmp_path / "lib", env=ENV).start()
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60) as c:
+            r = _append(c, "lib", 1, R[:5], np.arange(5), retrain="true")
+            assert r.status_code == 409 and "without a training job" in r.json()["message"], r.text
+        np.save(tmp_path / "t.npy", R[:5])
+        out = CliRunner().invoke(app, ["client", "append", "lib", "1", str(tmp_path / "t.npy"),
+                                       "--retrain"],
+                                 env={"GRIDPLACE_URL": srv.url, "GRIDPLACE_ADMIN_TOKEN": TOKEN})  # fmt: skip
+        assert out.exit_code == 2 and "without a training job" in out.output, out.output
     finally:
         srv.stop()
