@@ -76,6 +76,13 @@ def stored_parts(service: LocalizationService, base: VersionInfo) -> list[Part]:
         entry = dict(entry)
         stored = entry.get("stored")
         try:
+            if stored is None and "version" not in entry:
+                raise ConflictError(
+                    f"a traversal appended to version {entry.get('appended_to')} of map "
+                    f"{base.map!r} keeps no rows to retrain from (appended before appends kept "
+                    "them); upload every traversal as a new route instead",
+                    appended_to=entry.get("appended_to"),
+                )  # fmt: skip
             if stored is None:
                 origin = registry.get_version(base.map, int(entry["version"]))
                 if origin.job_id is None:
