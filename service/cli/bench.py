@@ -210,13 +210,15 @@ def bench_sequence(
     run_sequence_bench(n_list, repeats, grid, nordland, params, out)
 
 
+SummerRef = Annotated[Path, typer.Option(help="summer descriptors (.npy), frame-aligned with --qry")]
+WinterQry = Annotated[Path, typer.Option(help="winter descriptors (.npy)")]
+AppendedHalf = Annotated[int, typer.Option(help="first frame of the test half; frames before it are appended")]
+JsonOut = Annotated[Path, typer.Option(help="JSON output")]
+
+
 @app.command("append")
-def bench_append(
-    ref: Annotated[Path, typer.Option(help="summer descriptors (.npy), frame-aligned with --qry")],
-    qry: Annotated[Path, typer.Option(help="winter descriptors (.npy)")],
-    half: Annotated[int, typer.Option(help="first frame of the test half; frames before it are appended")] = 1788,
-    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-append.json"),
-) -> None:
+def bench_append(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
+                 out: JsonOut = Path("bench-append.json")) -> None:  # fmt: skip
     """Append winter half A to a summer map (partial_fit) against training on both from
     scratch: time and precision on winter half B, beside the unappended map."""
     from service.bench.append_bench import run_append_bench
@@ -225,12 +227,8 @@ def bench_append(
 
 
 @app.command("conditions")
-def bench_conditions(
-    ref: Annotated[Path, typer.Option(help="summer descriptors (.npy), frame-aligned with --qry")],
-    qry: Annotated[Path, typer.Option(help="winter descriptors (.npy)")],
-    half: Annotated[int, typer.Option(help="first frame of the test half; frames before it are appended")] = 1788,
-    out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-conditions.json"),
-) -> None:
+def bench_conditions(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
+                     out: JsonOut = Path("bench-conditions.json")) -> None:  # fmt: skip
     """Winter half A appended to a summer map tagged season=winter; winter half B queried
     with no condition, the condition named and inferred (single frames and drives)."""
     from service.bench.conditions_bench import run_conditions_bench
