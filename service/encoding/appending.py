@@ -389,12 +389,12 @@ def streamed_tally(X: np.ndarray, front: Any) -> ClassTally:
     return ClassTally(np.ones(n, np.uint32), mass)
 
 
-def state_arrays(model: Any) -> dict[str, np.ndarray]:
+def state_arrays(model: Any, prefix: str = "") -> dict[str, np.ndarray]:
     """A model's append state as arrays: per-class tallies and any condition whitening."""
     out: dict[str, np.ndarray] = {}
     for j, tally in enumerate(getattr(model, "tallies_", None) or []):
-        out.update(tally.to_arrays(f"enc.{j}"))
+        out.update(tally.to_arrays(f"{prefix}enc.{j}"))
     whitening = getattr(model, "whitening_", None)
     if out and whitening is not None:
-        out.update(whitening.to_arrays("whiten"))
+        out.update(whitening.to_arrays(f"{prefix}whiten"))
     return out

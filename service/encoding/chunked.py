@@ -16,7 +16,11 @@ from typing import Any
 import numpy as np
 from joblib import Parallel, delayed
 
+from service.encoding import chunked_appending
+from service.encoding.appending import ClassTally
 from service.encoding.base import Localization, PlaceRecognizer
+from service.encoding.chunked_appending import classifier_tally
+from service.encoding.conditions import conditions_from_arrays, conditions_to_arrays
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.footprint import Footprint
@@ -114,10 +118,11 @@ def fit_chunk_classifier(
     params: dict[str, Any],
     progress: ProgressFn | None = None,
     places: np.ndarray | None = None,
-) -> DigitClassifier:
+) -> tuple[DigitClassifier, ClassTally | None]:
     """Pattern-learned linear classifier whose classes are the chunk ids (``progress``
-    counts one unit per chunk); ``places`` gives each row's place (``None``: row i is
-    place i), and every row learns its place's chunk.
+    counts one unit per chunk), and its per-chunk counts when it is a prototype classifier
+    (what appending needs); ``places`` gives each row's place (``None``: row i is place i),
+    and every row learns its place's chunk.
 
     The BCSS comes from per-chunk means computed a chunk (or a row block) at a time; only
     the ``d̃`` selected columns of all rows are ever materialised.
@@ -155,19 +160,20 @@ def fit_chunk_classifier(
             X_sel[s : s + _BLOCK_ROWS] = (block - mean) / scale
     else:
         X_sel[:] = np.asarray(X, dtype=np.float64)[:, cols]
+    trainer = params.get("trainer", "logreg")
     return DigitClassifier.fit_selected(
         X_sel,
         labels,
         n_chunks,
         pattern,
-        trainer=params.get("trainer", "logreg"),
+        trainer=trainer,
         C=per_place_C(params.get("C", 4.0), int(bounds[-1]), X.shape[0]),
         dtype=params.get("dtype", "float32"),
         random_state=params.get("random_state", 0),
         n_jobs=params.get("n_jobs", 1),
         progress=Steps(progress, [""], [n_chunks]).step(0),
         temperature=_chunk_encoder(params)._temperature(),
-    )
+    ), classifier_tally(trainer, X_sel, labels, n_chunks)
 
 
 class ChunkedPlaceEncoder(PlaceRecognizer):
@@ -239,7 +245,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         params = self.get_params()
         normalizer = fit_front_end(X, params, bounds)
         steps = self._steps(progress, bounds, params)
-        classifier = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0), idx)
+        classifier, tally = fit_chunk_classifier(X, bounds, normalizer, params, steps.scope(0), idx)
         steps.done(0)
         rows = None if idx is None else chunk_rows(idx, bounds)
         # Chunks fitted in this process report per class; in child processes, per chunk.
@@ -257,7 +263,19 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         for enc in runner(jobs):
             encoders.append(enc)
             steps.done(len(encoders))
-        return self._assemble(normalizer, bounds, classifier, encoders, tr.n_traversals)
+        return self._assemble(normalizer, bounds, classifier, encoders, tr.n_traversals, tally)
+
+    def partial_fit(
+        self, X: Any, y: Any = None, *, places: Any = None, extend: bool = False,
+        whiten: bool | None = None, condition: str | None = None,
+    ) -> ChunkedPlaceEncoder:  # fmt: skip
+        """Append traversals as :meth:`PhaseEncoder.partial_fit` does, to the chunk
+        classifier and each chunk's encoder (:mod:`service.encoding.chunked_appending`: no
+        extension, no whitening)."""
+        del y
+        self._check_fitted()
+        chunked_appending.append(self, X, places, extend, whiten, condition)
+        return self
 
     @staticmethod
     def _steps(progress: ProgressFn | None, bounds: np.ndarray, params: dict[str, Any]) -> Steps:
@@ -277,9 +295,11 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
         n_traversals: int = 1,
+        tally: ClassTally | None = None,
     ) -> ChunkedPlaceEncoder:
-        """Build a fitted model from parts trained elsewhere (e.g. one queue job per chunk)."""
-        return cls(**params)._assemble(normalizer, bounds, classifier, encoders, n_traversals)
+        """Build a fitted model from parts trained elsewhere (e.g. one queue job per chunk);
+        ``tally``: the chunk classifier's counts, for appending."""
+        return cls(**params)._assemble(normalizer, bounds, classifier, encoders, n_traversals, tally)
 
     def _assemble(
         self,
@@ -288,6 +308,7 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         classifier: DigitClassifier,
         encoders: Sequence[PhaseEncoder],
         n_traversals: int = 1,
+        tally: ClassTally | None = None,
     ) -> ChunkedPlaceEncoder:
         bounds = np.asarray(bounds, dtype=np.int64)
         if len(encoders) != len(bounds) - 1 or classifier.n_classes != len(encoders):
@@ -299,6 +320,8 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         self.chunk_bounds_ = bounds
         self.chunk_classifier_ = classifier
         self.chunk_encoders_ = list(encoders)
+        self.chunk_tally_ = tally if tally is not None and tally.counts.shape[0] == len(encoders) else None
+        self.conditions_: dict[str, Any] = {}
         self._set_fitted(int(bounds[-1]), self.normalizer_.n_features, n_traversals)
         return self
 
@@ -348,7 +371,12 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
             "chunks": chunks,
             "n_traversals": self.n_traversals_,
         }
+        if keys := conditions_to_arrays(self.conditions_, arrays):
+            meta["conditions"] = keys
         return arrays, meta
+
+    def _state_arrays(self) -> dict[str, np.ndarray]:
+        return chunked_appending.state_arrays(self)
 
     @classmethod
     def _from_arrays(
@@ -363,11 +391,14 @@ class ChunkedPlaceEncoder(PlaceRecognizer):
         if front is None or front.normalizer is None:
             raise ValueError("a chunked model stores its normaliser")
         width = front.n_outputs or int(meta["n_features"])
-        return cls.assemble(
+        model = cls.assemble(
             params,
             front,
             np.asarray(meta["chunk_bounds"], dtype=np.int64),
             DigitClassifier.from_arrays(arrays, "chunk_clf", width),
             encoders,
             int(meta.get("n_traversals", 1)),
+            ClassTally.from_arrays(arrays, chunked_appending.TALLY_PREFIX),
         )
+        model.conditions_ = conditions_from_arrays(arrays, meta.get("conditions"))
+        return model

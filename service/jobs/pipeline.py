@@ -283,11 +283,11 @@ def train_classifier(data_dir: Path, job_id: str) -> float:
     workspace = Workspace(data_dir, job_id)
     prep = workspace.load_prep()
     X = open_route(registry.route_path(spec))
-    classifier = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump(),
-                                      FitReporter(registry, job_id, "chunk_classifier"),
-                                      open_places(data_dir, spec, X.shape[0]))  # fmt: skip
+    classifier, tally = fit_chunk_classifier(X, prep.bounds, prep.normalizer, params.model_dump(),
+                                             FitReporter(registry, job_id, "chunk_classifier"),
+                                             open_places(data_dir, spec, X.shape[0]))  # fmt: skip
     _write_while_open(registry, job_id, workspace, "the chunk classifier",
-                      lambda: workspace.save_classifier(classifier, X.shape[1]))
+                      lambda: workspace.save_classifier(classifier, X.shape[1], tally))
     seconds = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"chunk_classifier": seconds},
                              part="classifier")  # fmt: skip
@@ -303,9 +303,10 @@ def assemble(data_dir: Path, job_id: str) -> int:
     prep = workspace.load_prep()
     X = open_route(registry.route_path(spec))
     encoders = [workspace.load_chunk(c) for c in range(prep.n_chunks)]
+    classifier, tally = workspace.load_classifier(X.shape[1])
     model = ChunkedPlaceEncoder.assemble(
-        build_model(params).get_params(), prep.normalizer, prep.bounds,
-        workspace.load_classifier(X.shape[1]), encoders, _n_traversals(spec),
+        build_model(params).get_params(), prep.normalizer, prep.bounds, classifier, encoders,
+        _n_traversals(spec), tally,
     )  # fmt: skip
     timing = {"assemble": time.perf_counter() - start}
     registry.record_progress(job_id, timings=timing)

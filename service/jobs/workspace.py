@@ -26,6 +26,8 @@ from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
 from service.encoding import load_model, save_model
+from service.encoding.appending import ClassTally
+from service.encoding.chunked_appending import TALLY_PREFIX
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.front_end import FrontEnd
@@ -90,11 +92,18 @@ class Workspace:
         return Prep(front, arrays["bounds"].astype(np.int64))
 
     # -- chunk classifier -----------------------------------------------------------------
-    def save_classifier(self, classifier: DigitClassifier, n_features: int) -> None:
-        self._save_arrays(CLASSIFIER, classifier.to_arrays("chunk_clf", n_features))
+    def save_classifier(self, classifier: DigitClassifier, n_features: int,
+                        tally: ClassTally | None = None) -> None:  # fmt: skip
+        """The chunk classifier, with its per-chunk counts when it has them (appending)."""
+        arrays = classifier.to_arrays("chunk_clf", n_features)
+        if tally is not None:
+            arrays.update(tally.to_arrays(TALLY_PREFIX))
+        self._save_arrays(CLASSIFIER, arrays)
 
-    def load_classifier(self, n_features: int) -> DigitClassifier:
-        return DigitClassifier.from_arrays(self._load_arrays(CLASSIFIER), "chunk_clf", n_features)
+    def load_classifier(self, n_features: int) -> tuple[DigitClassifier, ClassTally | None]:
+        arrays = self._load_arrays(CLASSIFIER)
+        return (DigitClassifier.from_arrays(arrays, "chunk_clf", n_features),
+                ClassTally.from_arrays(arrays, TALLY_PREFIX))  # fmt: skip
 
     # -- chunk encoders -------------------------------------------------------------------
     def chunk_dir(self, chunk: int) -> Path:

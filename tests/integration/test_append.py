@@ -331,3 +331,26 @@ def test_a_retrain_needs_every_traversal_kept(tmp_path: Path) -> None:
         assert out.exit_code == 2 and "without a training job" in out.output, out.output
     finally:
         srv.stop()
+
+
+def test_a_chunked_map_trained_as_a_job_takes_appends(tmp_path: Path, route) -> None:
+    """A chunked route trained in parts (the job's workspace keeps the chunk classifier's
+    counts) takes an appended traversal; places beyond its chunks need a retrain."""
+    ref, qry = route
+    srv = ServerProcess(tmp_path / "chunked", env=ENV).start()
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60) as c:
+            r = c.post("/v1/maps/long/routes", headers=AUTH, files={"file": ("r.npy", _npy(ref))},
+                       data={"n_chunks": "2", "trainer": "prototype"})  # fmt: skip
+            assert r.status_code == 202, r.text
+            assert _wait_job(c, r.json()["id"])["state"] == "succeeded"
+            ok = _append(c, "long", 1, qry[:120], np.arange(120), tag="season=winter")
+            assert ok.status_code == 201, ok.text
+            v2 = ok.json()
+            assert v2["kind"] == "chunked_encoder" and v2["n_traversals"] == 2 and v2["n_frames"] == N
+            more = smooth_route(N + 5, D, seed=12).reference[N:]
+            refused = _append(c, "long", 2, more, np.arange(N, N + 5), extend="true")
+            assert refused.status_code == 409 and refused.json()["error"] == "retrain_required"
+            assert "retrain=true" in refused.json()["message"]
+    finally:
+        srv.stop()
