@@ -218,12 +218,14 @@ JsonOut = Annotated[Path, typer.Option(help="JSON output")]
 
 @app.command("append")
 def bench_append(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
-                 out: JsonOut = Path("bench-append.json")) -> None:  # fmt: skip
+                 out: JsonOut = Path("bench-append.json"),
+                 chunks: Annotated[int, typer.Option(min=1, help="chunks of the maps (1: unchunked)")] = 1,
+                 ) -> None:  # fmt: skip
     """Append winter half A to a summer map (partial_fit) against training on both from
     scratch: time and precision on winter half B, beside the unappended map."""
     from service.bench.append_bench import run_append_bench
 
-    run_append_bench(ref, qry, out, half)
+    run_append_bench(ref, qry, out, half, chunks)
 
 
 @app.command("conditions")
