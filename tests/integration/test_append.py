@@ -51,8 +51,9 @@ def _wait_job(c: httpx.Client, job_id: str, timeout_s: float = 120) -> dict[str,
     raise AssertionError(f"job {job_id} did not finish: {job}")
 
 
-def _train(c: httpx.Client, name: str, X: np.ndarray) -> int:
-    r = c.post(f"/v1/maps/{name}/routes", headers=AUTH, files={"file": ("r.npy", _npy(X))})
+def _train(c: httpx.Client, name: str, X: np.ndarray, **data: str) -> int:
+    r = c.post(f"/v1/maps/{name}/routes", headers=AUTH, files={"file": ("r.npy", _npy(X))},
+               data=data)  # fmt: skip
     assert r.status_code == 202, r.text
     job = _wait_job(c, r.json()["id"])
     assert job["state"] == "succeeded", job
@@ -263,10 +264,7 @@ def test_an_extension_the_periods_cannot_label_needs_a_retrain(tmp_path: Path) -
     srv = ServerProcess(tmp_path / "periods", env=ENV).start()
     try:
         with httpx.Client(base_url=srv.url, timeout=60) as c:
-            r = c.post("/v1/maps/res/routes", headers=AUTH, files={"file": ("r.npy", _npy(R))},
-                       data={"encoder_preset": "residue", "periods": "7,9"})  # fmt: skip
-            assert r.status_code == 202, r.text
-            assert _wait_job(c, r.json()["id"])["state"] == "succeeded"
+            assert _train(c, "res", R, encoder_preset="residue", periods="7,9") == 1
             more = smooth_route(80, D, seed=6).reference[60:72]
             ok = _append(c, "res", 1, more[:3], np.arange(60, 63), extend="true")
             assert ok.status_code == 201, ok.text
@@ -340,10 +338,7 @@ def test_a_chunked_map_trained_as_a_job_takes_appends(tmp_path: Path, route) -> 
     srv = ServerProcess(tmp_path / "chunked", env=ENV).start()
     try:
         with httpx.Client(base_url=srv.url, timeout=60) as c:
-            r = c.post("/v1/maps/long/routes", headers=AUTH, files={"file": ("r.npy", _npy(ref))},
-                       data={"n_chunks": "2", "trainer": "prototype"})  # fmt: skip
-            assert r.status_code == 202, r.text
-            assert _wait_job(c, r.json()["id"])["state"] == "succeeded"
+            assert _train(c, "long", ref, n_chunks="2", trainer="prototype") == 1
             ok = _append(c, "long", 1, qry[:120], np.arange(120), tag="season=winter")
             assert ok.status_code == 201, ok.text
             v2 = ok.json()
