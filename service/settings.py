@@ -41,14 +41,15 @@ class Settings(BaseSettings):
         "Localize message (MiB)",
     )  # fmt: skip
     max_public_requests: int = Field(
-        128, ge=1, le=100_000, description="public REST requests in flight at once, every "
-        "client together, from their headers to the end of their answer (GET and HEAD, and "
-        "admin calls, are not counted); one more is refused with 503 and Retry-After",
+        128, ge=1, le=100_000, description="public requests in flight at once, every client "
+        "together: REST calls from their headers to the end of their answer (GET, HEAD and "
+        "admin calls are not counted) and gRPC Localize calls; one more is refused with 503 "
+        "and Retry-After (gRPC: RESOURCE_EXHAUSTED)",
     )  # fmt: skip
     max_public_bodies_mb: int = Field(
-        64, ge=1, le=1_048_576, description="MiB of body that public REST requests in flight "
-        "hold together (a declared Content-Length is reserved before the body is read); a "
-        "request that does not fit is refused with 503 and Retry-After",
+        64, ge=1, le=1_048_576, description="MiB of body (gRPC: message) that public requests "
+        "in flight hold together (a declared Content-Length is reserved before the body is "
+        "read); a request that does not fit is refused the same way",
     )  # fmt: skip
     max_request_megapixels: float = Field(
         256.0, gt=0, description="most image pixels one request (or stream frame) may make the "

@@ -1,5 +1,9 @@
 """Server-wide bounds on public requests in flight: how many, and the bytes of their bodies.
 
+Public requests are REST calls on every path but the admin ones (GET and HEAD aside: no
+public route reads their body) and gRPC unary ``Localize`` calls (a stream leases from
+:mod:`service.core.stream_budget` instead).
+
 Each public request's body is capped (``GRIDPLACE_MAX_PUBLIC_BODY_MB``) and its work too
 (``GRIDPLACE_MAX_REQUEST_WORK``), but anonymous callers choose how many they send at once, and
 a body being received slowly holds its bytes (and, once parsed, its parse) for as long as the
@@ -99,3 +103,9 @@ class PublicLease:
         if not self.closed:
             self.closed = True
             self._budget._release(self.reserved)
+
+    def __enter__(self) -> PublicLease:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

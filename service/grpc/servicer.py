@@ -124,15 +124,18 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
 
     async def Localize(self, request: pb.LocalizeRequest, context: grpc.aio.ServicerContext) -> pb.LocalizeResponse:
         try:
-            _check_size(request.ByteSize(), self.workers.max_localize_bytes, "a Localize request",
+            size = request.ByteSize()
+            _check_size(size, self.workers.max_localize_bytes, "a Localize request",
                         "GRIDPLACE_MAX_PUBLIC_BODY_MB")  # fmt: skip
-            batcher = self.ctx.batcher
-            if (batcher is not None and request.WhichOneof("query") == "descriptor"
-                    and len(request.descriptor) <= MAX_BATCHED_BYTES):  # fmt: skip
-                result = await batcher.localize_bytes(request.map, request.descriptor,
-                                                      request.dimension or None)  # fmt: skip
-                return messages.localize_response(result)
-            return await _off_loop(self.workers.unary, self._localize, request)
+            assert self.ctx.public is not None
+            with self.ctx.public.open(size):  # public calls in flight: a server-wide budget
+                batcher = self.ctx.batcher
+                if (batcher is not None and request.WhichOneof("query") == "descriptor"
+                        and len(request.descriptor) <= MAX_BATCHED_BYTES):  # fmt: skip
+                    result = await batcher.localize_bytes(request.map, request.descriptor,
+                                                          request.dimension or None)  # fmt: skip
+                    return messages.localize_response(result)
+                return await _off_loop(self.workers.unary, self._localize, request)
         except GridplaceError as exc:
             await _abort(context, exc)
         except Exception:

@@ -1,7 +1,7 @@
 """Public requests in flight are bounded server-wide (``GRIDPLACE_MAX_PUBLIC_REQUESTS``,
 ``GRIDPLACE_MAX_PUBLIC_BODIES_MB``), against a real ``gridplace serve`` with small limits.
 
-Before: every public body being received was held whole by the server for as long as its
+gRPC ``Localize`` calls lease from the same budget. Before: every public body being received was held whole by the server for as long as its
 caller took to send the last byte, and their number was bounded by nothing: 24 slow 4 MB
 bodies held ≈ 96 MB. Callers here are raw sockets that send a body all but its last byte.
 
@@ -15,14 +15,17 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import grpc
 import httpx
 import numpy as np
 import psutil
 import pytest
 
-from service.api.process import ServerProcess
+from service.api.process import ServerProcess, free_port
 from service.encoding import ModelParams, build_model
 from service.encoding.synthetic import smooth_route
+from service.grpc.gen import localization_pb2 as pb
+from service.grpc.gen import localization_pb2_grpc as pb_grpc
 from service.registry import Registry
 
 pytestmark = pytest.mark.slow
@@ -43,7 +46,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     Registry(data).publish("route", build_model(params).fit(smooth_route(N, D, seed=3).reference),
                            params=params.model_dump(mode="json"), extractor=None, metrics={},
                            job_id=None)  # fmt: skip
-    with ServerProcess(data, env=ENV) as srv:
+    with ServerProcess(data, env={**ENV, "GRIDPLACE_GRPC_PORT": str(free_port())}) as srv:
         srv.wait_ready(60)
         yield srv
 
@@ -174,3 +177,24 @@ def test_requests_beyond_the_count_are_refused_and_others_answered_after(
     _settle(server)
     answers = [_ok(server) for _ in range(2 * MAX_REQUESTS)]
     assert answers == [200] * (2 * MAX_REQUESTS)
+
+
+def test_a_grpc_localize_beyond_the_budget_is_resource_exhausted(server: ServerProcess) -> None:
+    _settle(server)
+    request = pb.LocalizeRequest(map="route", descriptor=np.zeros(D, "<f4").tobytes())
+    callers = [SlowBody(server.url, 1000) for _ in range(MAX_REQUESTS)]
+    with grpc.insecure_channel(f"127.0.0.1:{server.env['GRIDPLACE_GRPC_PORT']}") as channel:
+        stub = pb_grpc.LocalizationStub(channel)
+        try:
+            for caller in callers:
+                caller.send_all_but_the_last_byte()
+            time.sleep(0.3)
+            with pytest.raises(grpc.RpcError) as refused:
+                stub.Localize(request, timeout=10)
+            assert refused.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+            assert f"GRIDPLACE_MAX_PUBLIC_REQUESTS={MAX_REQUESTS}" in (refused.value.details() or "")
+        finally:
+            for caller in callers:
+                caller.close()
+        _settle(server)
+        assert len(stub.Localize(request, timeout=10).matches) == 1
