@@ -241,9 +241,11 @@ def bench_conditions(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
 from service.cli.bench_drive import bench_drive
 from service.cli.bench_drive_scaling import bench_drive_scaling
 from service.cli.bench_paper import bench_paper
+from service.cli.bench_public_rss import bench_public_rss
 from service.cli.bench_quality import bench_quality
 
 app.command("paper")(bench_paper)
 app.command("quality")(bench_quality)
 app.command("drive")(bench_drive)
 app.command("drive-scaling")(bench_drive_scaling)
+app.command("public-rss")(bench_public_rss)
