@@ -5,8 +5,8 @@ kind (``gridplace bench public-rss`` runs them together against a real ``gridpla
   holds as many as its settings allow (its least recently seen are then forgotten).
 * :class:`HeldStreams`: every gRPC stream the server allows, each driving as many filtered
   vehicles as it will take (up to the per-stream 1,024), held open.
-* :func:`loop_drives`: drives with the dearest filter grid (S = 129) at the work budget.
-* :func:`loop_batches`: JSON batches at the body limit (the costliest body to parse).
+* :class:`Loops` of :func:`drive_request`: drives with the dearest filter grid at the work
+  budget; of :func:`batch_request`: JSON batches at the body limit (the costliest body to parse).
 * :class:`SlowBodies`: requests whose body never ends, holding places in the public budget.
 
 Refusals the settings make (503 ``capacity_exhausted``, 413 beyond the work budget, stream
@@ -27,10 +27,12 @@ from collections.abc import AsyncIterator
 import httpx
 import numpy as np
 
-#: the dearest sequence filter the options allow: 2 × 64 speeds + the stopped state
+from service.encoding.sequence import SequenceConfig
+
+#: the dearest sequence filter the options allow: 2 × 64 speeds + a stopped state per direction
 WORST_FILTER = {"min_speed": 0, "max_speed": 50, "speed_step": 50 / 63, "reverse": True,
                 "stop_probability": 0.1}  # fmt: skip
-WORST_STATES = 129
+WORST_STATES = SequenceConfig.parse(**WORST_FILTER).n_states
 MAX_VEHICLES_PER_STREAM = 1024
 
 

@@ -5,7 +5,7 @@ the baseline (the whole process tree) against :func:`~service.bench.public_rss.r
 The load is ``gridplace bench public-rss``'s (REST vehicles filling their store, every gRPC
 stream with as many filtered vehicles as the server takes, drives with the dearest filter at
 the work budget, JSON batches at the body limit, bodies that never end), on a SYNTHETIC map
-of 4,000 frames (drives of 547 frames with 129 states at a work budget of 300 M units, 6 at once)
+of 4,000 frames (drives of 543 frames with the dearest filter's 130 states at a work budget of 300 M units, 6 at once)
 and a wide one of 1,000 × 256."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from service.bench.public_load import WORST_STATES
 from service.bench.public_rss import rss_bound, run_public_rss_bench
 from service.settings import Settings
 
@@ -26,15 +27,16 @@ ENV = {"GRIDPLACE_MAX_PUBLIC_REQUESTS": "6", "GRIDPLACE_MAX_REQUEST_WORK": "300"
 
 
 def test_the_bound_is_every_term_of_the_settings() -> None:
+    assert WORST_STATES == 130  # 2 × 64 speeds + a stopped state per direction
     s = Settings(max_public_requests=12, max_public_bodies_mb=8, max_streams=4,
                  max_stream_state_mb=32, max_stream_frame_kb=1024, rest_vehicle_state_mb=4)  # fmt: skip
     bound = rss_bound(s, N)
     assert bound["stream_state"] == 32 and bound["stream_buffers"] == 4 * 5
     assert bound["rest_vehicles"] == 4 and bound["public_bodies_parsed"] == 12 * 8
-    assert bound["requests_computing"] == pytest.approx(12 * (128 + 20 * 129 * N / 2**20))
+    assert bound["requests_computing"] == pytest.approx(12 * (128 + 20 * WORST_STATES * N / 2**20))
     assert bound["total"] == pytest.approx(sum(v for k, v in bound.items() if k != "total"))
     more = rss_bound(s.model_copy(update={"max_public_requests": 100}), N)
-    assert more["requests_computing"] == pytest.approx(40 * (128 + 20 * 129 * N / 2**20))  # 40 threads
+    assert more["requests_computing"] == pytest.approx(40 * (128 + 20 * WORST_STATES * N / 2**20))  # 40 threads
 
 
 def test_the_worst_public_load_stays_under_the_bound(tmp_path: Path) -> None:
