@@ -6,7 +6,8 @@ frame by frame through :mod:`service.core.streams`. Both validate queries with t
 of :mod:`service.encoding.sequence` on the model's frame scores. A request is one drive: the
 filter starts from a uniform belief, appearance adaptation (:mod:`service.encoding.adaptation`,
 ``adapt``; the server's ``GRIDPLACE_DRIVE_ADAPTATION`` when not given) from the route's
-statistics, and neither is kept after the answer.
+statistics (or those of the condition the request names or the first frames are closest to,
+:mod:`service.core.query_conditions`), and neither is kept after the answer.
 """
 
 from __future__ import annotations

@@ -12,6 +12,12 @@ running statistics of its own earlier frames before they are localized; the answ
 whether a frame was adapted (a map trained without normalisation has no route statistics to
 adapt to: a frame that asked explicitly is refused, one that did not goes through unadapted).
 
+A frame may name the condition it was taken in (``condition``,
+:mod:`service.core.query_conditions`): a vehicle's adapter starts from that condition's
+statistics (or, named on a later frame, moves to them); with none named, on a version that
+records conditions, it infers the closest from the vehicle's first frames. An unadapted frame
+is standardised by the condition it names. The answer's ``condition`` says which was used.
+
 A vehicle's filter and adapter belong to one map *version*: when the served version changes
 (an activation or rollback mid-stream), the map changes, or the client asks for a reset, they
 restart, so scores of two different models are never mixed; turning the filter flag off

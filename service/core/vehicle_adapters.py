@@ -17,6 +17,10 @@ Only a digest of the key is held. ``reset`` with the key forgets the statistics 
 query. Nothing an unauthenticated caller sends can read, drive or reset another's statistics;
 it can only make the server forget them sooner, by filling the store.
 
+A query may name its condition (:mod:`service.core.query_conditions`): a new drive starts
+from it, a running one moves to it; with none named the drive infers it from its first frames
+when the version records conditions.
+
 An adapter belongs to one map version: when the served version changes it restarts, like a
 stream's. The least recently seen vehicles are forgotten beyond ``max_vehicles``
 (``GRIDPLACE_MAX_REST_VEHICLES``) or ``max_bytes`` (``GRIDPLACE_REST_VEHICLE_STATE_MB``); a
