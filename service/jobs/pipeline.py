@@ -217,8 +217,7 @@ def train_single(data_dir: Path, job_id: str) -> int:
     route = _traversals(data_dir, spec, X)
     _validate(params, X.shape[1], [route.n_places])
     model = build_model(params).fit(route, progress=FitReporter(registry, job_id, "fit"))
-    if spec.source is not None and spec.source.conditions and hasattr(model, "conditions_"):
-        model.conditions_ = conditions_of_rows(X, spec.source.conditions)
+    _record_conditions(model, spec, X)
     fit_s = time.perf_counter() - start
     registry.record_progress(job_id, chunks_done_delta=1, timings={"fit": fit_s}, part="train")
     version, timings = _publish(registry, spec, params, model, X, {"fit": fit_s}, route.places)
@@ -308,6 +307,7 @@ def assemble(data_dir: Path, job_id: str) -> int:
         build_model(params).get_params(), prep.normalizer, prep.bounds, classifier, encoders,
         _n_traversals(spec), tally,
     )  # fmt: skip
+    _record_conditions(model, spec, X)
     timing = {"assemble": time.perf_counter() - start}
     registry.record_progress(job_id, timings=timing)
     places = open_places(data_dir, spec, X.shape[0])
@@ -315,6 +315,12 @@ def assemble(data_dir: Path, job_id: str) -> int:
     workspace.remove()  # before the job reads succeeded: then nothing of it is left behind
     registry.finish_job(job_id, version, timings)
     return version
+
+
+def _record_conditions(model: PlaceRecognizer, spec: JobSpec, X: np.ndarray) -> None:
+    """The statistics of the route's tagged traversals (a retrain's), for queries to name."""
+    if spec.source is not None and spec.source.conditions and hasattr(model, "conditions_"):
+        model.conditions_ = conditions_of_rows(X, spec.source.conditions)
 
 
 def evaluate_on_route(

@@ -347,5 +347,18 @@ def test_a_chunked_map_trained_as_a_job_takes_appends(tmp_path: Path, route) -> 
             refused = _append(c, "long", 2, more, np.arange(N, N + 5), extend="true")
             assert refused.status_code == 409 and refused.json()["error"] == "retrain_required"
             assert "retrain=true" in refused.json()["message"]
+            # retrained in parts (the chunked job path), the tagged traversals' condition kept
+            job = _append(c, "long", 2, more, np.arange(N, N + 5), extend="true", retrain="true",
+                          tag="time=night")  # fmt: skip
+            assert job.status_code == 202, job.text
+            done = _wait_job(c, job.json()["id"])
+            assert done["state"] == "succeeded", done
+            assert c.post(f"/v1/maps/long/versions/{done['version']}/activate",
+                          headers=AUTH).status_code == 200  # fmt: skip
+            for condition in ("season=winter", "time=night"):
+                r = c.post("/v1/localize/batch", json={"map": "long", "condition": condition,
+                                                       "descriptors": more.tolist()})  # fmt: skip
+                assert r.status_code == 200 and r.json()["condition"] == condition, r.text
+                assert r.json()["version"] == done["version"]
     finally:
         srv.stop()
