@@ -36,7 +36,7 @@ def localize_response(result: LocalizeResult) -> pb.LocalizeResponse:
     matches = [pb.Match(index=int(i), chunk=int(c), confidence=float(p))
                for i, c, p in zip(result.index, result.chunk, result.confidence, strict=True)]  # fmt: skip
     return pb.LocalizeResponse(map=result.map, version=result.version, matches=matches,
-                               latency_ms=result.latency_ms)  # fmt: skip
+                               latency_ms=result.latency_ms, condition=result.condition or "")  # fmt: skip
 
 
 def frame(request: pb.StreamRequest) -> Frame:

@@ -131,7 +131,8 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
             with self.ctx.public.open(size):  # public calls in flight: a server-wide budget
                 batcher = self.ctx.batcher
                 if (batcher is not None and request.WhichOneof("query") == "descriptor"
-                        and len(request.descriptor) <= MAX_BATCHED_BYTES):  # fmt: skip
+                        and len(request.descriptor) <= MAX_BATCHED_BYTES
+                        and not request.condition):  # fmt: skip
                     result = await batcher.localize_bytes(request.map, request.descriptor,
                                                           request.dimension or None)  # fmt: skip
                     return messages.localize_response(result)
@@ -146,9 +147,11 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
         which = request.WhichOneof("query")
         if which == "descriptor":
             result = self.service.localize_bytes(request.map, request.descriptor,
-                                                 request.dimension or None)  # fmt: skip
+                                                 request.dimension or None,
+                                                 request.condition or None)  # fmt: skip
         elif which == "image":
-            result = self.service.localize_images(request.map, [("image", request.image)])
+            result = self.service.localize_images(request.map, [("image", request.image)],
+                                                  request.condition or None)  # fmt: skip
         else:
             raise EmptyInputError("send a descriptor (float32 bytes) or an image")
         return messages.localize_response(result)

@@ -17,7 +17,7 @@ def test_a_changed_proto_is_detected(tmp_path: Path) -> None:
     shutil.copytree(codegen.PROTOS, protos)
     proto = protos / "gridplace" / "v1" / "localization.proto"
     proto.write_text(proto.read_text().replace("uint32 dimension = 4;",
-                                               "uint32 dimension = 4;\n  string extra = 5;"))  # fmt: skip
+                                               "uint32 dimension = 4;\n  string extra = 99;"))  # fmt: skip
     assert codegen.check(protos=protos) == [
         "localization_pb2.py: differs from what the .proto generates",
         "localization_pb2.pyi: differs from what the .proto generates",

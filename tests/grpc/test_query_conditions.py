@@ -178,3 +178,27 @@ def test_the_client_and_cli_name_the_condition(seasons: dict[str, Any], tmp_path
     r = runner.invoke(app, ["client", "localize", "seasons", "--npy", str(path),
                             "--condition", "season=summer"], env=env)  # fmt: skip
     assert r.exit_code == 2 and "season=winter" in r.output, r.output
+
+
+def test_grpc_localize_names_the_condition(seasons: dict[str, Any], served: Served) -> None:
+    B = seasons["B"]
+
+    async def go() -> tuple[pb.LocalizeResponse, pb.LocalizeResponse, grpc.RpcError]:
+        async with grpc.aio.insecure_channel(served.target) as channel:
+            stub = pb_grpc.LocalizationStub(channel)
+            data = B.astype("<f4").tobytes()
+            sent = await stub.Localize(pb.LocalizeRequest(map="seasons", descriptor=data))
+            named = await stub.Localize(pb.LocalizeRequest(map="seasons", descriptor=data,
+                                                           condition="season=winter"))  # fmt: skip
+            try:
+                await stub.Localize(pb.LocalizeRequest(map="seasons", descriptor=data,
+                                                       condition="season=summer"))  # fmt: skip
+            except grpc.RpcError as exc:
+                return sent, named, exc
+            raise AssertionError("an unknown condition was answered")
+
+    sent, named, refused = asyncio.run(go())
+    assert sent.condition == "" and named.condition == "season=winter"
+    assert [m.index for m in named.matches] == _batch(seasons["url"], B, condition="season=winter")["index"]
+    assert [m.index for m in sent.matches] != [m.index for m in named.matches]
+    assert refused.code() == grpc.StatusCode.INVALID_ARGUMENT and "season=winter" in refused.details()

@@ -25,37 +25,37 @@ _sym_db = _symbol_database.Default()
 from google.protobuf import timestamp_pb2 as google_dot_protobuf_dot_timestamp__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1fgridplace/v1/localization.proto\x12\x0cgridplace.v1\x1a\x1fgoogle/protobuf/timestamp.proto\"a\n\x0fLocalizeRequest\x12\x0b\n\x03map\x18\x01 \x01(\t\x12\x14\n\ndescriptor\x18\x02 \x01(\x0cH\x00\x12\x0f\n\x05image\x18\x03 \x01(\x0cH\x00\x12\x11\n\tdimension\x18\x04 \x01(\rB\x07\n\x05query\"9\n\x05Match\x12\r\n\x05index\x18\x01 \x01(\x03\x12\r\n\x05\x63hunk\x18\x02 \x01(\x03\x12\x12\n\nconfidence\x18\x03 \x01(\x01\"j\n\x10LocalizeResponse\x12\x0b\n\x03map\x18\x01 \x01(\t\x12\x0f\n\x07version\x18\x02 \x01(\x03\x12$\n\x07matches\x18\x03 \x03(\x0b\x32\x13.gridplace.v1.Match\x12\x12\n\nlatency_ms\x18\x04 \x01(\x01\"\xb0\x02\n\rStreamRequest\x12\x12\n\nvehicle_id\x18\x01 \x01(\t\x12\x10\n\x08sequence\x18\x02 \x01(\x04\x12\x0b\n\x03map\x18\x03 \x01(\t\x12\x14\n\ndescriptor\x18\x04 \x01(\x0cH\x00\x12\x0f\n\x05image\x18\x05 \x01(\x0cH\x00\x12\x17\n\x0fsequence_filter\x18\x06 \x01(\x08\x12\x16\n\x0ereset_sequence\x18\x07 \x01(\x08\x12,\n\nadaptation\x18\x08 \x01(\x0e\x32\x18.gridplace.v1.Adaptation\x12\x15\n\x08odometry\x18\t \x01(\x01H\x01\x88\x01\x01\x12\x17\n\nodometry_m\x18\n \x01(\x01H\x02\x88\x01\x01\x12\x11\n\tcondition\x18\x0b \x01(\tB\x07\n\x05queryB\x0b\n\t_odometryB\r\n\x0b_odometry_m\"6\n\x05\x45rror\x12\x0c\n\x04\x63ode\x18\x01 \x01(\t\x12\x0e\n\x06status\x18\x02 \x01(\t\x12\x0f\n\x07message\x18\x03 \x01(\t\"\xcb\x02\n\x0eStreamResponse\x12\x12\n\nvehicle_id\x18\x01 \x01(\t\x12\x10\n\x08sequence\x18\x02 \x01(\x04\x12\x0b\n\x03map\x18\x03 \x01(\t\x12\x0f\n\x07version\x18\x04 \x01(\x03\x12\r\n\x05index\x18\x05 \x01(\x03\x12\r\n\x05\x63hunk\x18\x06 \x01(\x03\x12\x12\n\nconfidence\x18\x07 \x01(\x01\x12\x10\n\x08\x66iltered\x18\x08 \x01(\x08\x12\x11\n\traw_index\x18\t \x01(\x03\x12\x16\n\x0eraw_confidence\x18\n \x01(\x01\x12\x13\n\x0b\x66rames_used\x18\x0b \x01(\r\x12\x12\n\nlatency_ms\x18\x0c \x01(\x01\x12\"\n\x05\x65rror\x18\r \x01(\x0b\x32\x13.gridplace.v1.Error\x12\x0f\n\x07\x61\x64\x61pted\x18\x0e \x01(\x08\x12\x15\n\rvehicle_state\x18\x0f \x01(\t\x12\x11\n\tcondition\x18\x10 \x01(\t\"\x11\n\x0fListMapsRequest\"7\n\x10ListMapsResponse\x12#\n\x04maps\x18\x01 \x03(\x0b\x32\x15.gridplace.v1.MapInfo\"\x1d\n\rGetMapRequest\x12\x0c\n\x04name\x18\x01 \x01(\t\"\xee\x01\n\x0bVersionInfo\x12\x0f\n\x07version\x18\x01 \x01(\x03\x12\x10\n\x08n_frames\x18\x02 \x01(\x03\x12\x12\n\nn_features\x18\x03 \x01(\x03\x12\x0c\n\x04kind\x18\x04 \x01(\t\x12\x0e\n\x06sha256\x18\x05 \x01(\t\x12\x16\n\x0e\x61rtifact_bytes\x18\x06 \x01(\x03\x12\x13\n\x0bpaper_bytes\x18\x07 \x01(\x03\x12\x17\n\x0fimage_extractor\x18\x08 \x01(\x08\x12.\n\ncreated_at\x18\t \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x14\n\x0cn_traversals\x18\n \x01(\x03\"\xe6\x01\n\x07MapInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1b\n\x0e\x61\x63tive_version\x18\x02 \x01(\x03H\x00\x88\x01\x01\x12\x10\n\x08versions\x18\x03 \x03(\x03\x12.\n\ncreated_at\x18\x04 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x1c\n\x0fserving_version\x18\x05 \x01(\x03H\x01\x88\x01\x01\x12)\n\x06\x61\x63tive\x18\x06 \x01(\x0b\x32\x19.gridplace.v1.VersionInfoB\x11\n\x0f_active_versionB\x12\n\x10_serving_version*K\n\nAdaptation\x12\x16\n\x12\x41\x44\x41PTATION_DEFAULT\x10\x00\x12\x11\n\rADAPTATION_ON\x10\x01\x12\x12\n\x0e\x41\x44\x41PTATION_OFF\x10\x02\x32\xb3\x02\n\x0cLocalization\x12I\n\x08Localize\x12\x1d.gridplace.v1.LocalizeRequest\x1a\x1e.gridplace.v1.LocalizeResponse\x12O\n\x0eLocalizeStream\x12\x1b.gridplace.v1.StreamRequest\x1a\x1c.gridplace.v1.StreamResponse(\x01\x30\x01\x12I\n\x08ListMaps\x12\x1d.gridplace.v1.ListMapsRequest\x1a\x1e.gridplace.v1.ListMapsResponse\x12<\n\x06GetMap\x12\x1b.gridplace.v1.GetMapRequest\x1a\x15.gridplace.v1.MapInfob\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1fgridplace/v1/localization.proto\x12\x0cgridplace.v1\x1a\x1fgoogle/protobuf/timestamp.proto\"t\n\x0fLocalizeRequest\x12\x0b\n\x03map\x18\x01 \x01(\t\x12\x14\n\ndescriptor\x18\x02 \x01(\x0cH\x00\x12\x0f\n\x05image\x18\x03 \x01(\x0cH\x00\x12\x11\n\tdimension\x18\x04 \x01(\r\x12\x11\n\tcondition\x18\x05 \x01(\tB\x07\n\x05query\"9\n\x05Match\x12\r\n\x05index\x18\x01 \x01(\x03\x12\r\n\x05\x63hunk\x18\x02 \x01(\x03\x12\x12\n\nconfidence\x18\x03 \x01(\x01\"}\n\x10LocalizeResponse\x12\x0b\n\x03map\x18\x01 \x01(\t\x12\x0f\n\x07version\x18\x02 \x01(\x03\x12$\n\x07matches\x18\x03 \x03(\x0b\x32\x13.gridplace.v1.Match\x12\x12\n\nlatency_ms\x18\x04 \x01(\x01\x12\x11\n\tcondition\x18\x05 \x01(\t\"\xb0\x02\n\rStreamRequest\x12\x12\n\nvehicle_id\x18\x01 \x01(\t\x12\x10\n\x08sequence\x18\x02 \x01(\x04\x12\x0b\n\x03map\x18\x03 \x01(\t\x12\x14\n\ndescriptor\x18\x04 \x01(\x0cH\x00\x12\x0f\n\x05image\x18\x05 \x01(\x0cH\x00\x12\x17\n\x0fsequence_filter\x18\x06 \x01(\x08\x12\x16\n\x0ereset_sequence\x18\x07 \x01(\x08\x12,\n\nadaptation\x18\x08 \x01(\x0e\x32\x18.gridplace.v1.Adaptation\x12\x15\n\x08odometry\x18\t \x01(\x01H\x01\x88\x01\x01\x12\x17\n\nodometry_m\x18\n \x01(\x01H\x02\x88\x01\x01\x12\x11\n\tcondition\x18\x0b \x01(\tB\x07\n\x05queryB\x0b\n\t_odometryB\r\n\x0b_odometry_m\"6\n\x05\x45rror\x12\x0c\n\x04\x63ode\x18\x01 \x01(\t\x12\x0e\n\x06status\x18\x02 \x01(\t\x12\x0f\n\x07message\x18\x03 \x01(\t\"\xcb\x02\n\x0eStreamResponse\x12\x12\n\nvehicle_id\x18\x01 \x01(\t\x12\x10\n\x08sequence\x18\x02 \x01(\x04\x12\x0b\n\x03map\x18\x03 \x01(\t\x12\x0f\n\x07version\x18\x04 \x01(\x03\x12\r\n\x05index\x18\x05 \x01(\x03\x12\r\n\x05\x63hunk\x18\x06 \x01(\x03\x12\x12\n\nconfidence\x18\x07 \x01(\x01\x12\x10\n\x08\x66iltered\x18\x08 \x01(\x08\x12\x11\n\traw_index\x18\t \x01(\x03\x12\x16\n\x0eraw_confidence\x18\n \x01(\x01\x12\x13\n\x0b\x66rames_used\x18\x0b \x01(\r\x12\x12\n\nlatency_ms\x18\x0c \x01(\x01\x12\"\n\x05\x65rror\x18\r \x01(\x0b\x32\x13.gridplace.v1.Error\x12\x0f\n\x07\x61\x64\x61pted\x18\x0e \x01(\x08\x12\x15\n\rvehicle_state\x18\x0f \x01(\t\x12\x11\n\tcondition\x18\x10 \x01(\t\"\x11\n\x0fListMapsRequest\"7\n\x10ListMapsResponse\x12#\n\x04maps\x18\x01 \x03(\x0b\x32\x15.gridplace.v1.MapInfo\"\x1d\n\rGetMapRequest\x12\x0c\n\x04name\x18\x01 \x01(\t\"\xee\x01\n\x0bVersionInfo\x12\x0f\n\x07version\x18\x01 \x01(\x03\x12\x10\n\x08n_frames\x18\x02 \x01(\x03\x12\x12\n\nn_features\x18\x03 \x01(\x03\x12\x0c\n\x04kind\x18\x04 \x01(\t\x12\x0e\n\x06sha256\x18\x05 \x01(\t\x12\x16\n\x0e\x61rtifact_bytes\x18\x06 \x01(\x03\x12\x13\n\x0bpaper_bytes\x18\x07 \x01(\x03\x12\x17\n\x0fimage_extractor\x18\x08 \x01(\x08\x12.\n\ncreated_at\x18\t \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x14\n\x0cn_traversals\x18\n \x01(\x03\"\xe6\x01\n\x07MapInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1b\n\x0e\x61\x63tive_version\x18\x02 \x01(\x03H\x00\x88\x01\x01\x12\x10\n\x08versions\x18\x03 \x03(\x03\x12.\n\ncreated_at\x18\x04 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x1c\n\x0fserving_version\x18\x05 \x01(\x03H\x01\x88\x01\x01\x12)\n\x06\x61\x63tive\x18\x06 \x01(\x0b\x32\x19.gridplace.v1.VersionInfoB\x11\n\x0f_active_versionB\x12\n\x10_serving_version*K\n\nAdaptation\x12\x16\n\x12\x41\x44\x41PTATION_DEFAULT\x10\x00\x12\x11\n\rADAPTATION_ON\x10\x01\x12\x12\n\x0e\x41\x44\x41PTATION_OFF\x10\x02\x32\xb3\x02\n\x0cLocalization\x12I\n\x08Localize\x12\x1d.gridplace.v1.LocalizeRequest\x1a\x1e.gridplace.v1.LocalizeResponse\x12O\n\x0eLocalizeStream\x12\x1b.gridplace.v1.StreamRequest\x1a\x1c.gridplace.v1.StreamResponse(\x01\x30\x01\x12I\n\x08ListMaps\x12\x1d.gridplace.v1.ListMapsRequest\x1a\x1e.gridplace.v1.ListMapsResponse\x12<\n\x06GetMap\x12\x1b.gridplace.v1.GetMapRequest\x1a\x15.gridplace.v1.MapInfob\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'gridplace.v1.localization_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_ADAPTATION']._serialized_start=1626
-  _globals['_ADAPTATION']._serialized_end=1701
+  _globals['_ADAPTATION']._serialized_start=1664
+  _globals['_ADAPTATION']._serialized_end=1739
   _globals['_LOCALIZEREQUEST']._serialized_start=82
-  _globals['_LOCALIZEREQUEST']._serialized_end=179
-  _globals['_MATCH']._serialized_start=181
-  _globals['_MATCH']._serialized_end=238
-  _globals['_LOCALIZERESPONSE']._serialized_start=240
-  _globals['_LOCALIZERESPONSE']._serialized_end=346
-  _globals['_STREAMREQUEST']._serialized_start=349
-  _globals['_STREAMREQUEST']._serialized_end=653
-  _globals['_ERROR']._serialized_start=655
-  _globals['_ERROR']._serialized_end=709
-  _globals['_STREAMRESPONSE']._serialized_start=712
-  _globals['_STREAMRESPONSE']._serialized_end=1043
-  _globals['_LISTMAPSREQUEST']._serialized_start=1045
-  _globals['_LISTMAPSREQUEST']._serialized_end=1062
-  _globals['_LISTMAPSRESPONSE']._serialized_start=1064
-  _globals['_LISTMAPSRESPONSE']._serialized_end=1119
-  _globals['_GETMAPREQUEST']._serialized_start=1121
-  _globals['_GETMAPREQUEST']._serialized_end=1150
-  _globals['_VERSIONINFO']._serialized_start=1153
-  _globals['_VERSIONINFO']._serialized_end=1391
-  _globals['_MAPINFO']._serialized_start=1394
-  _globals['_MAPINFO']._serialized_end=1624
-  _globals['_LOCALIZATION']._serialized_start=1704
-  _globals['_LOCALIZATION']._serialized_end=2011
+  _globals['_LOCALIZEREQUEST']._serialized_end=198
+  _globals['_MATCH']._serialized_start=200
+  _globals['_MATCH']._serialized_end=257
+  _globals['_LOCALIZERESPONSE']._serialized_start=259
+  _globals['_LOCALIZERESPONSE']._serialized_end=384
+  _globals['_STREAMREQUEST']._serialized_start=387
+  _globals['_STREAMREQUEST']._serialized_end=691
+  _globals['_ERROR']._serialized_start=693
+  _globals['_ERROR']._serialized_end=747
+  _globals['_STREAMRESPONSE']._serialized_start=750
+  _globals['_STREAMRESPONSE']._serialized_end=1081
+  _globals['_LISTMAPSREQUEST']._serialized_start=1083
+  _globals['_LISTMAPSREQUEST']._serialized_end=1100
+  _globals['_LISTMAPSRESPONSE']._serialized_start=1102
+  _globals['_LISTMAPSRESPONSE']._serialized_end=1157
+  _globals['_GETMAPREQUEST']._serialized_start=1159
+  _globals['_GETMAPREQUEST']._serialized_end=1188
+  _globals['_VERSIONINFO']._serialized_start=1191
+  _globals['_VERSIONINFO']._serialized_end=1429
+  _globals['_MAPINFO']._serialized_start=1432
+  _globals['_MAPINFO']._serialized_end=1662
+  _globals['_LOCALIZATION']._serialized_start=1742
+  _globals['_LOCALIZATION']._serialized_end=2049
 # @@protoc_insertion_point(module_scope)

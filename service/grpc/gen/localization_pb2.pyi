@@ -20,16 +20,18 @@ ADAPTATION_ON: Adaptation
 ADAPTATION_OFF: Adaptation
 
 class LocalizeRequest(_message.Message):
-    __slots__ = ("map", "descriptor", "image", "dimension")
+    __slots__ = ("map", "descriptor", "image", "dimension", "condition")
     MAP_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTOR_FIELD_NUMBER: _ClassVar[int]
     IMAGE_FIELD_NUMBER: _ClassVar[int]
     DIMENSION_FIELD_NUMBER: _ClassVar[int]
+    CONDITION_FIELD_NUMBER: _ClassVar[int]
     map: str
     descriptor: bytes
     image: bytes
     dimension: int
-    def __init__(self, map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., dimension: _Optional[int] = ...) -> None: ...
+    condition: str
+    def __init__(self, map: _Optional[str] = ..., descriptor: _Optional[bytes] = ..., image: _Optional[bytes] = ..., dimension: _Optional[int] = ..., condition: _Optional[str] = ...) -> None: ...
 
 class Match(_message.Message):
     __slots__ = ("index", "chunk", "confidence")
@@ -42,16 +44,18 @@ class Match(_message.Message):
     def __init__(self, index: _Optional[int] = ..., chunk: _Optional[int] = ..., confidence: _Optional[float] = ...) -> None: ...
 
 class LocalizeResponse(_message.Message):
-    __slots__ = ("map", "version", "matches", "latency_ms")
+    __slots__ = ("map", "version", "matches", "latency_ms", "condition")
     MAP_FIELD_NUMBER: _ClassVar[int]
     VERSION_FIELD_NUMBER: _ClassVar[int]
     MATCHES_FIELD_NUMBER: _ClassVar[int]
     LATENCY_MS_FIELD_NUMBER: _ClassVar[int]
+    CONDITION_FIELD_NUMBER: _ClassVar[int]
     map: str
     version: int
     matches: _containers.RepeatedCompositeFieldContainer[Match]
     latency_ms: float
-    def __init__(self, map: _Optional[str] = ..., version: _Optional[int] = ..., matches: _Optional[_Iterable[_Union[Match, _Mapping]]] = ..., latency_ms: _Optional[float] = ...) -> None: ...
+    condition: str
+    def __init__(self, map: _Optional[str] = ..., version: _Optional[int] = ..., matches: _Optional[_Iterable[_Union[Match, _Mapping]]] = ..., latency_ms: _Optional[float] = ..., condition: _Optional[str] = ...) -> None: ...
 
 class StreamRequest(_message.Message):
     __slots__ = ("vehicle_id", "sequence", "map", "descriptor", "image", "sequence_filter", "reset_sequence", "adaptation", "odometry", "odometry_m", "condition")
