@@ -22,29 +22,26 @@ import re
 import shutil
 import time
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Connection, RowMapping, text
 
 from service.encoding import PlaceRecognizer, load_model, read_manifest, save_model
-from service.encoding.artifacts import MANIFEST, TENSORS
-from service.errors import ArtifactError, ConflictError, DimensionChangeError, NotFoundError
-from service.registry.db import (
-    Database,
-    JournalMode,
-    dumps,
-    loads,
-    sqlite_url,
-    to_text,
-    ts,
-    utcnow,
-)
+from service.encoding.artifacts import TENSORS
+from service.errors import ArtifactError, ConflictError, NotFoundError
+from service.registry.db import Database, JournalMode, loads, sqlite_url, ts
 from service.registry.job_table import JobTable
 from service.registry.migrations import migrate
 from service.registry.models import MapInfo, VersionInfo
 from service.registry.names import check_map_name, check_version
+from service.registry.publication import (
+    PublishRecord,
+    commit_version,
+    reference_width,
+    reserve_version,
+    width_change,
+)
 from service.settings import get_settings
 
 DB_FILE = "registry.sqlite3"
@@ -161,13 +158,13 @@ class Registry(JobTable):
         version, else the newest one; ``None`` for a map without versions."""
         check_map_name(name)
         with self.db.connect() as conn:
-            return self._reference_width(conn, name)
+            return reference_width(conn, name)
 
     def check_width(self, name: str, n_features: int, allow_change: bool) -> dict[str, Any] | None:
         """Refuse (409) a new version of another descriptor width than the map's clients use,
         unless ``allow_change``; returns the change to record (``None``: no change)."""
         with self.db.connect() as conn:
-            return _width_change(self._reference_width(conn, name), name, n_features, allow_change)
+            return width_change(reference_width(conn, name), name, n_features, allow_change)
 
     def artifact_dir(self, name: str, version: int) -> Path:
         return self.artifacts_dir / check_map_name(name) / f"v{check_version(version)}"
@@ -214,14 +211,14 @@ class Registry(JobTable):
         if job_id is not None and (done := self.version_for_job(job_id)) is not None:
             return done
         self.check_width(name, int(model.n_features_in_), allow_dimension_change)
-        version = self._reserve_version(name)
+        version = reserve_version(self.db, name)
         path = self.artifact_dir(name, version)
         if path.exists():  # left by a registry database that was lost or replaced
             self._discard(path)
         manifest_extra = {"map": name, "version": version, "job_id": job_id, "metrics": metrics,
                           "extractor": extractor}  # fmt: skip
         manifest = save_model(model, path, extra=manifest_extra)
-        record = _Record(params, extractor, metrics, job_id, activate, content_sha256,
+        record = PublishRecord(params, extractor, metrics, job_id, activate, content_sha256,
                          dict(extra or {}), allow_dimension_change)  # fmt: skip
         try:
             committed = self._commit_version(name, version, path, manifest, record)
@@ -313,79 +310,11 @@ class Registry(JobTable):
         return removed
 
     # -- internals ------------------------------------------------------------------------
-    def _reserve_version(self, name: str) -> int:
-        with self.db.transaction() as conn:
-            row = conn.execute(
-                text("INSERT INTO version_counters (map, last_reserved) VALUES (:m, 1) "
-                     "ON CONFLICT (map) DO UPDATE "
-                     "SET last_reserved = version_counters.last_reserved + 1 "
-                     "RETURNING last_reserved"),
-                {"m": name},
-            ).one()  # fmt: skip
-        return int(row[0])
-
     def _commit_version(
-        self, name: str, version: int, path: Path, manifest: dict[str, Any], record: _Record
+        self, name: str, version: int, path: Path, manifest: dict[str, Any], record: PublishRecord
     ) -> int | None:
         """The one metadata transaction of a publish; None if the job already published."""
-        try:
-            sha = manifest["files"][TENSORS]["sha256"]
-            artifact_bytes = int(manifest["artifact_bytes"])
-            footprint = manifest["footprint"]
-            n_features = int(manifest["n_features"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ArtifactError(f"artifact {path} has an incomplete manifest: {exc}") from exc
-        job_id = record.job_id
-        now = to_text(utcnow())
-        with self.db.transaction() as conn:
-            if not (path / MANIFEST).is_file():
-                raise ArtifactError(f"artifact {path} disappeared before it was recorded")
-            if job_id is not None and conn.execute(
-                text("SELECT 1 FROM versions WHERE job_id = :j"), {"j": job_id}
-            ).first():
-                return None
-            if job_id is not None and conn.execute(
-                text("SELECT 1 FROM jobs WHERE id = :j AND state = 'failed'"), {"j": job_id}
-            ).first():  # serialised with fail_job by the write lock: never both
-                raise ConflictError(
-                    f"training job {job_id} has failed (timed out or cancelled); "
-                    "its model is not published", job_id=job_id,
-                )  # fmt: skip
-            # checked again under the lock: a version of another width may have gone live
-            change = _width_change(self._reference_width(conn, name), name, n_features,
-                                   record.allow_dimension_change)  # fmt: skip
-            extra = {**record.extra, **({"dimension_change": change} if change else {})}
-            conn.execute(
-                text("INSERT INTO maps (name, created_at) VALUES (:m, :t) "
-                     "ON CONFLICT (name) DO NOTHING"),
-                {"m": name, "t": now},
-            )  # fmt: skip
-            activate = record.activate
-            if activate is None:  # the first version (of a new or emptied map) goes live
-                activate = not conn.execute(
-                    text("SELECT 1 FROM versions WHERE map = :m LIMIT 1"), {"m": name}
-                ).first()
-            conn.execute(
-                text("INSERT INTO versions (map, version, n_frames, n_features, kind, params, "
-                     "extractor, created_at, sha256, footprint, artifact_bytes, metrics, job_id, "
-                     "content_sha256, extra, n_traversals) VALUES (:map, :version, :n_frames, "
-                     ":n_features, :kind, :params, :extractor, :created_at, :sha256, :footprint, "
-                     ":artifact_bytes, :metrics, :job_id, :content_sha256, :extra, "
-                     ":n_traversals)"),
-                {"map": name, "version": version, "n_frames": int(manifest["n_frames"]),
-                 "n_features": n_features, "kind": manifest["kind"],
-                 "params": dumps(record.params),
-                 "extractor": None if record.extractor is None else dumps(record.extractor),
-                 "created_at": now, "sha256": sha, "footprint": dumps(footprint),
-                 "artifact_bytes": artifact_bytes, "metrics": dumps(record.metrics),
-                 "job_id": job_id, "content_sha256": record.content_sha256,
-                 "extra": dumps(extra), "n_traversals": int(manifest.get("n_traversals", 1))},
-            )  # fmt: skip
-            if activate:
-                conn.execute(text("UPDATE maps SET active_version = :v WHERE name = :m"),
-                             {"v": version, "m": name})  # fmt: skip
-            self.db.bump_generation(conn)
-        return version
+        return commit_version(self.db, name, version, path, manifest, record)
 
     def _move_to_trash(self, path: Path) -> Path | None:
         trash = path.with_name(f".trash-{path.name}-{uuid.uuid4().hex[:8]}")
@@ -399,16 +328,6 @@ class Registry(JobTable):
         trash = self._move_to_trash(path)
         if trash is not None:
             shutil.rmtree(trash, ignore_errors=True)
-
-    @staticmethod
-    def _reference_width(conn: Connection, name: str) -> tuple[int, int] | None:
-        row = conn.execute(
-            text("SELECT v.version, v.n_features FROM versions v JOIN maps m ON m.name = v.map "
-                 "WHERE v.map = :m ORDER BY (v.version = m.active_version) DESC, v.version DESC "
-                 "LIMIT 1"),
-            {"m": name},
-        ).first()  # fmt: skip
-        return None if row is None else (int(row[0]), int(row[1]))
 
     @staticmethod
     def _map_row(conn: Connection, name: str) -> RowMapping:
@@ -459,33 +378,3 @@ class Registry(JobTable):
             content_sha256=row["content_sha256"],
             extra=loads(row["extra"]) or {},
         )
-
-
-@dataclass(frozen=True)
-class _Record:
-    """What a publish records beside the artifact."""
-
-    params: dict[str, Any]
-    extractor: dict[str, Any] | None
-    metrics: dict[str, Any]
-    job_id: str | None
-    activate: bool | None
-    content_sha256: str | None
-    extra: dict[str, Any]
-    allow_dimension_change: bool
-
-
-def _width_change(
-    reference: tuple[int, int] | None, name: str, n_features: int, allow_change: bool
-) -> dict[str, Any] | None:
-    if reference is None or reference[1] == n_features:
-        return None
-    version, width = reference
-    if not allow_change:
-        raise DimensionChangeError(
-            f"map {name!r} version {version} takes d={width} descriptors but this route has "
-            f"d={n_features}: its clients would break; upload with allow_dimension_change=true "
-            "to change the map's descriptor width", map=name, version=version,
-            expected=width, got=n_features,
-        )  # fmt: skip
-    return {"from": width, "to": n_features, "reference_version": version}
