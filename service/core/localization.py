@@ -30,7 +30,7 @@ from service.errors import (
 )
 from service.imaging import extract_blobs, image_pixels, make_extractor, parse_extractor_config
 from service.registry.job_table import MAX_PAGE as MAX_JOB_PAGE
-from service.registry.job_table import encode_cursor
+from service.registry.job_cursor import encode_cursor
 from service.registry.models import JOB_STATES, RouteSource
 from service.registry.names import check_map_name
 from service.settings import Settings

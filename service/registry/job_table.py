@@ -8,9 +8,7 @@ so a late progress report from a straggling worker cannot resurrect a failed job
 
 from __future__ import annotations
 
-import base64
 import hashlib
-import json
 import uuid
 from collections.abc import Iterable
 from pathlib import Path
@@ -20,6 +18,7 @@ from sqlalchemy import Connection, RowMapping, bindparam, text
 
 from service.errors import InvalidInputError, NotFoundError
 from service.registry.db import Database, dumps, from_text, loads, to_text, ts, utcnow
+from service.registry.job_cursor import decode_cursor
 from service.registry.models import JobInfo, JobSpec, RouteSource
 from service.registry.names import check_map_name
 from service.wire import JobProgress, PartProgress
@@ -27,7 +26,6 @@ from service.wire import JobProgress, PartProgress
 MAX_IDEMPOTENCY_KEY = 200
 MAX_RETRIES_KEPT = 200
 MAX_PAGE = 500
-MAX_CURSOR_CHARS = 256  # a cursor of encode_cursor is about 100
 _OPEN = "state IN ('queued', 'running')"
 
 
@@ -36,33 +34,6 @@ def fingerprint(source: RouteSource, params: dict[str, Any], extractor: dict[str
     extractor (``params`` as the full validated set, so an explicit default equals none)."""
     payload = dumps({"content": source.content_sha256, "params": params, "extractor": extractor})
     return hashlib.sha256(payload.encode()).hexdigest()
-
-
-def encode_cursor(job: JobInfo) -> str:
-    """An opaque position after ``job`` in the newest-first job listing."""
-    raw = json.dumps([to_text(job.created_at), job.id]).encode()
-    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
-
-
-def decode_cursor(cursor: str) -> tuple[str, str]:
-    """The position a cursor of :func:`encode_cursor` names; anything else (too long, nested,
-    holding a NUL, which PostgreSQL's text cannot) is invalid input."""
-    shown = cursor[:80] + ("…" if len(cursor) > 80 else "")
-    try:
-        if len(cursor) > MAX_CURSOR_CHARS:
-            raise ValueError(f"longer than {MAX_CURSOR_CHARS} characters")
-        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4))
-        if raw[:1] != b"[" or raw.count(b"[") != 1:
-            raise ValueError("not a position")
-        created_at, job_id = json.loads(raw)
-        if not isinstance(created_at, str) or not isinstance(job_id, str):
-            raise ValueError(cursor)
-        if "\x00" in created_at or "\x00" in job_id:
-            raise ValueError("holds a NUL")
-        from_text(created_at)
-    except (ValueError, TypeError, RecursionError) as exc:
-        raise InvalidInputError(f"invalid job list cursor {shown!r}", cursor=shown) from exc
-    return created_at, job_id
 
 
 def _no_job(job_id: str) -> NotFoundError:
@@ -200,7 +171,7 @@ class JobTable:
         limit: int = 100,
         after: str | None = None,
     ) -> list[JobInfo]:
-        """Newest first; ``after``: a cursor from :func:`encode_cursor` (the next page)."""
+        """Newest first; ``after``: a cursor from :func:`~service.registry.job_cursor.encode_cursor` (the next page)."""
         where, args = self._job_filter(map_name, states, backend)
         if after is not None:
             created_at, job_id = decode_cursor(after)

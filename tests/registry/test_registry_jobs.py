@@ -8,7 +8,7 @@ import pytest
 
 from service.errors import InvalidInputError, NotFoundError
 from service.registry import Registry, RouteSource
-from service.registry.job_table import encode_cursor
+from service.registry.job_cursor import encode_cursor
 
 
 def _create(registry: Registry, key: str | None = None, name: str = "route-a"):
