@@ -6,9 +6,10 @@ adaptation (:mod:`service.encoding.adaptation`, the traversal fed in its recorde
 same adapted rows for every method; ``adapt=False`` turns it off). Every drive
 (:mod:`service.bench.drive_protocols`) is cut from those rows and run through a fresh
 :func:`service.encoding.sequence.filter_sequence` with the same configuration for every
-method. Drives lie in one part of the route: half **A** (the first half) tunes, half **B**
-and the whole route report. Odometry, when the filter takes it, is SIMULATED from the ground
-truth (:func:`~service.bench.drive_protocols.noisy_odometry`).
+method (the ``traffic`` drives' stops use near-identical copies of the query rows, scored once
+as well: :func:`near_identical_copies`). Drives lie in one part of the route: half **A** (the
+first half) tunes, half **B** and the whole route report. Odometry, when the filter takes it,
+is SIMULATED from the ground truth (:func:`~service.bench.drive_protocols.noisy_odometry`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from service.errors import InvalidParameterError
 from service.harness.context import run_context
 from service.harness.datasets import Dataset
 
-PROTOCOLS: tuple[str, ...] = ("whole", "short", "speed", "kidnap", "reverse")
+PROTOCOLS: tuple[str, ...] = ("whole", "short", "speed", "traffic", "kidnap", "reverse")
 REPORTED_SPLITS: tuple[str, ...] = ("B", "all")
 ODOMETRY_MODEL = ("SIMULATED odometry from the ground-truth displacement d per frame: "
                   "d·(1 + s·e1) + s·e2, e1, e2 standard normal, s = the noise level "
@@ -50,6 +51,12 @@ class DriveSettings(BaseModel):
     short_length: int = Field(200, ge=1, le=100_000)
     speed_drives: int = Field(3, ge=1, le=10_000, description="drives per speed profile")
     speed_frames: int = Field(600, ge=10, le=1_000_000)
+    traffic_drives: int = Field(9, ge=1, le=10_000, description="drives of the traffic generator")
+    stop_noise: float = Field(
+        0.03, ge=0.0, le=1.0,
+        description="a stopped vehicle's near-identical frames (traffic): descriptor noise of "
+        "this norm relative to the frame's",
+    )
     kidnap_drives: int = Field(20, ge=1, le=10_000)
     kidnap_before: int = Field(150, ge=1, le=1_000_000)
     kidnap_after: int = Field(250, ge=1, le=1_000_000)
@@ -71,6 +78,7 @@ def make_drives(lo: int, hi: int, truth: np.ndarray, s: DriveSettings,
         "whole": lambda: dp.whole(lo, hi, truth),
         "short": lambda: dp.short(lo, hi, truth, s.short_drives, s.short_length, seed),
         "speed": lambda: dp.speed(lo, hi, truth, s.speed_drives, s.speed_frames, seed),
+        "traffic": lambda: dp.traffic(lo, hi, truth, s.traffic_drives, s.speed_frames, seed),
         "kidnap": lambda: dp.kidnap(lo, hi, truth, s.kidnap_drives, s.kidnap_before,
                                     s.kidnap_after, s.min_jump, seed),  # fmt: skip
         "reverse": lambda: dp.reverse(lo, hi, truth),
@@ -182,15 +190,32 @@ def frame_scores(model: Any, queries: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_method(m: DriveMethod, ds: Dataset, queries: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-    """Fit ``m`` on the reference; its frame scores of every query row, and what it cost."""
+def near_identical_copies(queries: np.ndarray, noise: float, seed: int) -> np.ndarray:
+    """:data:`~service.bench.drive_protocols.COPIES` copies of every query row with Gaussian
+    noise of norm ``noise`` × the row's (a stopped vehicle's camera), stacked after each other."""
+    rng = np.random.default_rng([seed, 6])
+    norms = np.linalg.norm(queries, axis=1, keepdims=True)
+    out = []
+    for _ in range(dp.COPIES):
+        e = rng.standard_normal(queries.shape)
+        e *= noise * norms / np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-30)
+        out.append((queries + e).astype(queries.dtype))
+    return np.concatenate(out)
+
+
+def fit_method(m: DriveMethod, ds: Dataset, queries: np.ndarray,
+               copies: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+    """Fit ``m`` on the reference; its frame scores of every query row (then of the ``copies``
+    rows, when given), and what it cost."""
     start = time.perf_counter()
     model = m.build().fit(ds.reference)
     fit_s = time.perf_counter() - start
     start = time.perf_counter()
     scores = frame_scores(model, queries)
     score_s = time.perf_counter() - start
-    best = scores.argmax(axis=1)
+    if copies is not None:
+        scores = np.concatenate([scores, frame_scores(model, copies)])
+    best = scores[: queries.shape[0]].argmax(axis=1)
     single = {name: float(dm.correct(best[lo:hi], ds.ground_truth[lo:hi]).mean())
               for name, (lo, hi) in splits(queries.shape[0]).items()}  # fmt: skip
     periods = getattr(model, "periods_", None)
@@ -216,11 +241,13 @@ def run_drive_bench(ds: Dataset, chosen: list[DriveMethod], settings: DriveSetti
               for k, (name, (lo, hi)) in enumerate(splits(n).items())}  # fmt: skip
     progress("adapting the query traversal…" if settings.adapt else "starting…")
     queries, adaptation = adapted_queries(ds, settings.adapt)
+    copies = (near_identical_copies(queries, settings.stop_noise, settings.seed)
+              if "traffic" in settings.protocols else None)  # fmt: skip
     scores: dict[str, np.ndarray] = {}
     methods: dict[str, Any] = {}
     for m in chosen:
         progress(f"{m.name}: fitting and scoring {n} queries against {ds.n_frames} frames…")
-        scores[m.name], methods[m.name] = fit_method(m, ds, queries)
+        scores[m.name], methods[m.name] = fit_method(m, ds, queries, copies)
     tuning = None
     if tune != "off":
         tuning = tune_configs(scores, drives["A"], config, tune, grid, settings.seed, progress)

@@ -19,6 +19,13 @@ Protocols:
   and the fastest speed) — so that no figure is tuned to one generator; the position is the
   running sum of the speed, rounded to a frame; stops of 5–20 frames (the same query frame
   sent again) are inserted every 60–250 frames.
+- ``traffic``: a second, differently parameterised variable-speed generator — city driving:
+  cruising speeds of 0.3–3 reference frames per query frame (beyond the filter's default speed
+  grid at both ends) changing by linear ramps, and stops of 20–60 frames every 80–300 frames
+  that the vehicle brakes into and accelerates out of (5–20 and 10–40 frames), so it creeps
+  below 0.5 on the way; a stopped vehicle's frames are near-identical, not equal: the recorded
+  frame and noisy copies of it in turn (:data:`COPIES` copies with descriptor noise, made by
+  the bench), as a real camera's would be.
 - ``kidnap``: a drive at the recorded speed that, after ``before`` frames, jumps to a random
   frame at least ``min_jump`` frames away and drives on ``after`` frames.
 - ``reverse``: the part of the route driven backwards.
@@ -37,6 +44,10 @@ MIN_SPEED, MAX_SPEED = 0.5, 2.0
 STOP_FRAMES = (5, 20)  # a stop repeats one frame this many times (inclusive)
 STOP_GAP = (60, 250)  # frames driven between stops
 SpeedProfile = Callable[[np.random.Generator, int], np.ndarray]
+TRAFFIC_SPEEDS = (0.3, 3.0)  # cruising speeds of the traffic generator
+TRAFFIC_STOPS = (20, 60)  # its stops, frames
+TRAFFIC_GAP = (80, 300)  # frames driven between its stops
+COPIES = 2  # near-identical copies of each query frame that a stopped vehicle sends in turn
 
 
 @dataclass(frozen=True)
@@ -187,6 +198,64 @@ def speed(lo: int, hi: int, ground_truth: np.ndarray, count: int, frames: int, s
             start = int(rng.integers(lo, room + 1)) if room > lo else lo
             rows = positions(start, v, hi)
             out.append(make_drive("speed", f"speed-{profile}-{k}", rows, ground_truth))
+    return out
+
+
+# -- traffic: a second generator --------------------------------------------------------------
+def _ramp(start: float, end: float, frames: int) -> np.ndarray:
+    return np.linspace(start, end, frames + 1)[1:]
+
+
+def traffic_speeds(rng: np.random.Generator, n: int) -> np.ndarray:
+    """City driving (see the module doc): cruising at ramped speeds, braking into stops and
+    accelerating out of them."""
+    parts: list[np.ndarray] = []
+    v = float(rng.uniform(*TRAFFIC_SPEEDS))
+    total = 0
+    while total < n:
+        drive = int(rng.integers(*TRAFFIC_GAP))
+        while drive > 0:  # cruise: ramps between random speeds
+            span = min(drive, int(rng.integers(40, 151)))
+            target = float(rng.uniform(*TRAFFIC_SPEEDS))
+            ramp = min(span, int(rng.integers(10, 41)))
+            parts += [_ramp(v, target, ramp), np.full(span - ramp, target)]
+            v, drive = target, drive - span
+        brake, stop, go = (int(rng.integers(5, 21)), int(rng.integers(*TRAFFIC_STOPS)),
+                           int(rng.integers(10, 41)))  # fmt: skip
+        v_next = float(rng.uniform(*TRAFFIC_SPEEDS))
+        parts += [_ramp(v, 0.0, brake), np.zeros(stop), _ramp(0.0, v_next, go)]
+        v = v_next
+        total = sum(p.size for p in parts)
+    return np.concatenate(parts)[:n]
+
+
+def near_identical(rows: np.ndarray, n_rows: int, copies: int = COPIES) -> np.ndarray:
+    """``rows`` with each repeat of a frame replaced by its copies in turn: the ``k``-th copy of
+    query row ``r`` is row ``r + k·n_rows`` of the bench's extended query rows."""
+    out = rows.copy()
+    k = 0
+    for t in range(1, rows.size):
+        k = k + 1 if rows[t] == rows[t - 1] else 0
+        out[t] = rows[t] + (k % (copies + 1)) * n_rows
+    return out
+
+
+def traffic(lo: int, hi: int, ground_truth: np.ndarray, count: int, frames: int,
+            seed: int, copies: int = COPIES) -> list[Drive]:  # fmt: skip
+    """``count`` traffic drives of at most ``frames`` query frames from random starts; their
+    rows index the query rows extended by ``copies`` noisy copies (``ground_truth`` is of the
+    recorded rows only)."""
+    _check_part(lo, hi, 50)
+    n_rows = int(np.asarray(ground_truth).shape[0])
+    truth = np.tile(np.asarray(ground_truth, dtype=np.int64), copies + 1)
+    rng = np.random.default_rng([seed, 5])
+    out = []
+    for k in range(count):
+        v = traffic_speeds(rng, frames)
+        room = max(lo, hi - int(np.ceil(v.sum())) - 1)
+        start = int(rng.integers(lo, room + 1)) if room > lo else lo
+        rows = near_identical(positions(start, v, hi), n_rows, copies)
+        out.append(make_drive("traffic", f"traffic-{k}", rows, truth))
     return out
 
 

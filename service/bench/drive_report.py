@@ -11,7 +11,8 @@ from rich.table import Table
 SHORT_AT = (10, 50)  # precision of short drives after this many frames, in the tables
 FIXED_PARTS = ("projection", "normalization", "masks")  # parts that do not grow with the route
 COLUMNS = ("method", "map bytes", "code bytes", "single", "whole", "L90", "short@10", "short@50",
-           "speed+stops", "kidnap: median (p90), never", "reverse (reverse filter)")  # fmt: skip
+           "speed+stops", "traffic", "kidnap: median (p90), never",
+           "reverse (reverse filter)")  # fmt: skip
 
 
 def _bytes(n: float) -> str:
@@ -74,7 +75,8 @@ def rows(report: dict[str, Any], config: str, split: str) -> list[tuple[list[str
             label, _bytes(m["bytes"]), _bytes(code_bytes(m)), _pct(m["single"][split]),
             _pct(f["whole"]["precision"]) if "whole" in f else "–", _l90(short),
             *(_pct(curve[at - 1]) if len(curve) >= at else "–" for at in SHORT_AT),
-            _pct(f["speed"]["precision"]) if "speed" in f else "–", _kidnap(f.get("kidnap")),
+            _pct(f["speed"]["precision"]) if "speed" in f else "–",
+            _pct(f["traffic"]["precision"]) if "traffic" in f else "–", _kidnap(f.get("kidnap")),
             f"{_pct(rev['precision'])} ({_pct(rev['precision_reverse_filter'])})" if rev else "–",
         ]  # fmt: skip
         odo = _odometry_cells(res)
@@ -100,6 +102,8 @@ def notes(report: dict[str, Any]) -> str:
         f"until within ±{report['tolerance']} for {report['recovery_hold']} frames, median (p90) of "
         "recovered drives, share never recovered. Speed: 0.5–2 reference frames per query frame "
         "(piecewise-constant, smooth and accelerating profiles), stops of 5–20 repeated frames. "
+        "Traffic: cruising at 0.3–3 with ramps, braking into and accelerating out of stops of "
+        f"20–60 near-identical frames (descriptor noise {report['settings'].get('stop_noise', 0)}). "
         + (f"Odometry: {odo['model']}." if odo["available"] else
            "Odometry: n/a — this build's filter takes no odometry (not measured).")
     )  # fmt: skip

@@ -52,12 +52,14 @@ def bench_drive(
         help="comma-separated: exact-nn, pq-mM, residue-rR, residue-kK-rR, or any preset "
              "(default: exact-nn, pq-m64, robust, residue r=0.1/0.034, k=3 r=0.013, ridge, "
              "and drive when it exists)")] = None,
-    protocols: Annotated[str, typer.Option(help="comma-separated")] = "whole,short,speed,kidnap,reverse",
+    protocols: Annotated[str, typer.Option(help="comma-separated")] = "whole,short,speed,traffic,kidnap,reverse",
     drives: Annotated[int, typer.Option("--drives", help="short drives from random starts")] = 100,
     short_length: Annotated[int, typer.Option(
         "--short-length", "--short-lengths", help="frames of each short drive (L = 1 … this)")] = 200,
     speed_drives: Annotated[int, typer.Option(help="variable-speed drives per speed profile")] = 3,
     speed_frames: Annotated[int, typer.Option(help="query frames of a variable-speed drive, at most")] = 600,
+    traffic_drives: Annotated[int, typer.Option(help="drives of the second variable-speed generator (traffic)")] = 9,
+    stop_noise: Annotated[float, typer.Option(help="traffic: a stopped vehicle's near-identical frames, descriptor noise relative to the frame's norm")] = 0.03,
     kidnap_drives: Annotated[int, typer.Option(help="kidnapped drives")] = 20,
     kidnap_before: Annotated[int, typer.Option(help="frames before the jump")] = 150,
     kidnap_after: Annotated[int, typer.Option(help="frames after the jump")] = 250,
@@ -106,7 +108,8 @@ def bench_drive(
     try:
         settings = DriveSettings(
             protocols=chosen_protocols, short_drives=drives, short_length=short_length,
-            speed_drives=speed_drives, speed_frames=speed_frames, kidnap_drives=kidnap_drives,
+            speed_drives=speed_drives, speed_frames=speed_frames, traffic_drives=traffic_drives,
+            stop_noise=stop_noise, kidnap_drives=kidnap_drives,
             kidnap_before=kidnap_before, kidnap_after=kidnap_after, min_jump=min_jump,
             odometry_noise=_floats(odometry_noise, "--odometry-noise"), adapt=adapt, seed=seed)
     except ValueError as exc:  # pydantic's ValidationError is a ValueError

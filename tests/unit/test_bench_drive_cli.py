@@ -16,7 +16,7 @@ from service.cli import app
 from service.encoding.sequence import SequenceConfig, SequenceTrack, filter_sequence
 
 SMALL = ["--synthetic", "400", "--drives", "12", "--short-length", "40", "--speed-drives", "1",
-         "--speed-frames", "150", "--kidnap-drives", "4", "--kidnap-before", "40",
+         "--speed-frames", "150", "--traffic-drives", "2", "--kidnap-drives", "4", "--kidnap-before", "40",
          "--kidnap-after", "60", "--min-jump", "80", "--odometry-noise", "0.1"]  # fmt: skip
 
 
@@ -35,7 +35,7 @@ def test_the_bench_drives_every_method_through_the_filter(tmp_path: Path) -> Non
     r = json.loads(out.read_text())
     assert r["data"]["synthetic"] and "SYNTHETIC" in r["data"]["label"]
     assert set(r["methods"]) == {"exact-nn", "robust", "residue-r0.1"}
-    assert set(r["drives"]["B"]) == {"whole", "short", "speed", "kidnap", "reverse"}
+    assert set(r["drives"]["B"]) == {"whole", "short", "speed", "traffic", "kidnap", "reverse"}
     for name, m in r["methods"].items():
         assert m["bytes"] > 0 and m["components"], name
         assert set(m["results"]) == {"default", "tuned"}
@@ -44,6 +44,7 @@ def test_the_bench_drives_every_method_through_the_filter(tmp_path: Path) -> Non
             assert len(f["short"]["curve"]) == 40
             assert 0.0 <= f["speed"]["precision"] <= 1.0
             assert set(f["speed"]["by_profile"]) == set(dp.SPEED_PROFILES)
+            assert f["traffic"]["drives"] == 2 and 0.0 <= f["traffic"]["precision"] <= 1.0
             assert f["kidnap"]["recovery"]["drives"] == 4
     assert len(r["methods"]["residue-r0.1"]["periods"]) == 2  # the fitted code is recorded
     assert r["methods"]["exact-nn"]["periods"] is None

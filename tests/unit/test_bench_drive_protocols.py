@@ -124,3 +124,30 @@ def test_kidnap_recovery_counts_frames_until_the_track_stays_right() -> None:
     s = dm.recovery_summary([0, 10, 20, None])
     assert s["median"] == 10 and s["never"] == 0.25 and s["drives"] == 4
     assert s["p90"] == pytest.approx(18.0)
+
+
+def test_traffic_brakes_into_long_stops_and_cruises_beyond_the_default_grid() -> None:
+    v = dp.traffic_speeds(np.random.default_rng(5), 5000)
+    assert v.shape == (5000,) and v.min() >= 0.0 and v.max() <= dp.TRAFFIC_SPEEDS[1] + 1e-9
+    assert v.max() > 2.0 and ((v > 0) & (v < 0.5)).any()  # faster than 2, creeping below 0.5
+    stops = [n for val, n in _runs((v == 0).astype(np.int64)) if val == 1]
+    assert len(stops) >= 10 and all(dp.TRAFFIC_STOPS[0] <= n <= dp.TRAFFIC_STOPS[1] for n in stops)
+    assert np.abs(np.diff(v)).max() < 0.35  # ramps, no jumps in speed
+
+
+def test_a_stopped_vehicle_sends_near_identical_copies_in_turn() -> None:
+    rows = np.array([5, 6, 6, 6, 6, 7, 7, 8])
+    got = dp.near_identical(rows, 100, copies=2)
+    assert got.tolist() == [5, 6, 106, 206, 6, 7, 107, 8]
+    assert (np.diff(got) != 0).all()  # never the same row twice in a row
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_traffic_drives_index_the_copies_with_the_recorded_truth(seed: int) -> None:
+    truth = np.arange(4000, dtype=np.int64) // 2 + 7
+    for d in dp.traffic(100, 4000, truth, count=2, frames=500, seed=seed):
+        recorded = d.rows % 4000
+        assert d.rows.max() < 4000 * (dp.COPIES + 1) and recorded.min() >= 100
+        assert np.array_equal(d.truth, truth[recorded])
+        assert np.diff(recorded).min() >= 0 and (np.diff(recorded) == 0).any()  # it stops
