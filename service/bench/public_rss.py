@@ -46,7 +46,8 @@ FILTER_BYTES_PER_STATE_FRAME = 20
 def rss_bound(settings: Settings, n_frames: int) -> dict[str, float]:
     """The bound on what public callers can make the server hold beyond its baseline (MiB),
     term by term (``n_frames``: the longest served route)."""
-    computing = min(settings.max_public_requests, THREADS)
+    # REST's worker threads, gRPC's (unary calls and stream frames) and the micro-batcher's
+    computing = min(settings.max_public_requests, THREADS) + settings.grpc_workers + 1
     drive_mib = FILTER_BYTES_PER_STATE_FRAME * load.WORST_STATES * n_frames / MIB
     terms = {
         "stream_state": float(settings.max_stream_state_mb),

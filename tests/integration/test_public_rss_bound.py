@@ -28,15 +28,15 @@ ENV = {"GRIDPLACE_MAX_PUBLIC_REQUESTS": "6", "GRIDPLACE_MAX_REQUEST_WORK": "300"
 
 def test_the_bound_is_every_term_of_the_settings() -> None:
     assert WORST_STATES == 130  # 2 × 64 speeds + a stopped state per direction
-    s = Settings(max_public_requests=12, max_public_bodies_mb=8, max_streams=4,
+    s = Settings(max_public_requests=12, max_public_bodies_mb=8, max_streams=4, grpc_workers=4,
                  max_stream_state_mb=32, max_stream_frame_kb=1024, rest_vehicle_state_mb=4)  # fmt: skip
     bound = rss_bound(s, N)
     assert bound["stream_state"] == 32 and bound["stream_buffers"] == 4 * 5
     assert bound["rest_vehicles"] == 4 and bound["public_bodies_parsed"] == 12 * 8
-    assert bound["requests_computing"] == pytest.approx(12 * (128 + 20 * WORST_STATES * N / 2**20))
+    assert bound["requests_computing"] == pytest.approx((12 + 4 + 1) * (128 + 20 * WORST_STATES * N / 2**20))
     assert bound["total"] == pytest.approx(sum(v for k, v in bound.items() if k != "total"))
     more = rss_bound(s.model_copy(update={"max_public_requests": 100}), N)
-    assert more["requests_computing"] == pytest.approx(40 * (128 + 20 * WORST_STATES * N / 2**20))  # 40 threads
+    assert more["requests_computing"] == pytest.approx((40 + 4 + 1) * (128 + 20 * WORST_STATES * N / 2**20))  # 40 REST threads
 
 
 def test_the_worst_public_load_stays_under_the_bound(tmp_path: Path) -> None:
