@@ -124,13 +124,19 @@ def _warm_up(url: str, target: str, long: np.ndarray, wide: np.ndarray) -> None:
 
 def run_public_rss_bench(n_frames: int, vehicle_d: int, seconds: float, env: dict[str, str],
                          out: Path | None, rest_vehicles: int | None = None) -> dict[str, Any]:  # fmt: skip
-    """Run the load; return (and write to ``out``) the report."""
+    """Run the load; return (and write to ``out``) the report. The server's data (its maps)
+    lives in a temporary directory, removed afterwards."""
+    with tempfile.TemporaryDirectory(prefix="gridplace-public-rss-") as tmp:
+        return _measure(Path(tmp), n_frames, vehicle_d, seconds, env, out, rest_vehicles)
+
+
+def _measure(data: Path, n_frames: int, vehicle_d: int, seconds: float, env: dict[str, str],
+             out: Path | None, rest_vehicles: int | None) -> dict[str, Any]:  # fmt: skip
     settings = Settings.model_validate(
         {k.removeprefix("GRIDPLACE_").lower(): v for k, v in env.items()}
     )
     bound = rss_bound(settings, n_frames)
     drive_frames = int(settings.max_request_work * 1e6 // (n_frames * (load.WORST_STATES + 8)))
-    data = Path(tempfile.mkdtemp(prefix="gridplace-public-rss-"))
     long, wide = _publish(data, n_frames, vehicle_d)
     port = free_port()
     report: dict[str, Any] = {"benchmark": "public-rss", "date": datetime.now(UTC).isoformat(),
