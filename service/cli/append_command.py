@@ -8,17 +8,8 @@ from typing import Annotated
 
 import typer
 
-from service.cli.client_commands import (
-    AsJson,
-    Timeout,
-    Token,
-    Url,
-    _client,
-    _print_json,
-    _report_job,
-    _wait,
-    console,
-)
+from service.cli.client_job_follow import follow_job, report_job
+from service.cli.client_options import AsJson, Timeout, Token, Url, console, open_client, print_json
 from service.cli.console import plural
 from service.cli.errors import cli_errors
 
@@ -54,20 +45,20 @@ def append(
     bad input: another width, places out of range, a tag that is not KEY=VALUE). With
     --retrain: a training job over every traversal instead (exit 2 if it fails)."""
     if retrain:
-        with _client(url, token, timeout) as gp:
+        with open_client(url, token, timeout) as gp:
             with console.status(f"uploading {', '.join(t.name for t in traversals)} to retrain"):
                 job = gp.retrain_traversals(map_name, version, traversals if len(traversals) > 1
                                             else traversals[0], places=places, tags=tag or [],
                                             extend=extend)  # fmt: skip
-            _report_job(gp, _wait(gp, job, wait_timeout), as_json)
+            report_job(gp, follow_job(gp, job, wait_timeout), as_json)
         return
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         with console.status(f"appending {', '.join(t.name for t in traversals)}"):
             v = gp.append_traversals(map_name, version, traversals if len(traversals) > 1
                                      else traversals[0], places=places, tags=tag or [],
                                      extend=extend, whiten=whiten, activate=activate)  # fmt: skip
     if as_json:
-        _print_json(v)
+        print_json(v)
         return
     added = v.extra.get("traversals", [])[-len(traversals):]
     tags = ", ".join(f"{k}={val}" for k, val in (added[0].get("tags") or {}).items()) if added else ""

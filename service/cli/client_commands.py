@@ -6,28 +6,30 @@ The server is ``--url`` or ``GRIDPLACE_URL`` (default http://127.0.0.1:8080); ad
 
 from __future__ import annotations
 
-import json
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import numpy as np
 import typer
-from pydantic import BaseModel
-from rich.progress import (
-    BarColumn,
-    Progress,
-    SpinnerColumn,
-    TaskProgressColumn,
-    TextColumn,
-    TimeElapsedColumn,
-)
 from rich.table import Table
 
-from service.cli.console import cli_console, plural, print_table
+from service.cli.append_command import append
+from service.cli.client_job_follow import follow_job, report_job
+from service.cli.client_options import (
+    AsJson,
+    ConditionOption,
+    Timeout,
+    Token,
+    Url,
+    WaitTimeout,
+    console,
+    open_client,
+    print_json,
+    when,
+)
+from service.cli.console import plural, print_table
 from service.cli.errors import cli_errors
-from service.client import GridplaceClient, Job, JobFailedError
+from service.client import JobFailedError
 from service.client.calls import options_of
 from service.encoding.phases import parse_periods
 from service.encoding.presets import DEFAULT_PRESET, PRESETS
@@ -35,35 +37,6 @@ from service.errors import InvalidInputError
 from service.npyfile import load_npy
 
 app = typer.Typer(help="Talk to a running gridplace server (REST).", no_args_is_help=True)
-console = cli_console()
-
-Url = Annotated[str | None, typer.Option("--url", envvar="GRIDPLACE_URL", show_envvar=True,
-                                         help="server URL (default http://127.0.0.1:8080)")]  # fmt: skip
-Token = Annotated[str | None, typer.Option("--token", envvar="GRIDPLACE_ADMIN_TOKEN", show_envvar=True,
-                                           show_default=False, help="admin bearer token")]  # fmt: skip
-Timeout = Annotated[float, typer.Option(help="seconds per request")]
-AsJson = Annotated[bool, typer.Option("--json", help="print the server's answer as JSON")]
-ConditionOption = Annotated[str | None, typer.Option(
-    "--condition", help="the condition the queries were taken in: one the map's version "
-    "recorded from tagged traversals (e.g. season=winter), 'reference', or 'auto' (inferred "
-    "from the queries); they are standardised by its statistics")]  # fmt: skip
-
-
-@contextmanager
-def _client(url: str | None, token: str | None, timeout: float) -> Iterator[GridplaceClient]:
-    with GridplaceClient(url, token=token, timeout=timeout) as gp:
-        yield gp
-
-
-def _print_json(value: BaseModel | Sequence[BaseModel]) -> None:
-    if isinstance(value, BaseModel):
-        typer.echo(value.model_dump_json(indent=2))
-    else:
-        typer.echo(json.dumps([v.model_dump(mode="json") for v in value], indent=2))
-
-
-def _when(value: Any) -> str:
-    return value.strftime("%Y-%m-%d %H:%M:%S") if value is not None else "-"
 
 
 def _rows(spec: str | None, n: int) -> slice:
@@ -108,7 +81,7 @@ def localize(
     """Localize descriptors (--npy, sent as binary float32) or images (--image) on MAP."""
     if (npy is None) == (not image):
         raise InvalidInputError("give exactly one of --npy or --image")
-    with _client(url, None, timeout) as gp:
+    with open_client(url, None, timeout) as gp:
         if npy is not None:
             Q, first = _load_queries(npy, rows)
             batch = gp.localize_batch(map_name, Q, condition)
@@ -118,7 +91,7 @@ def localize(
             batch = gp.localize_images(map_name, image, condition)
             labels = [p.name for p in image]
     if as_json:
-        _print_json(batch)
+        print_json(batch)
         return
     cond = f", condition {batch.condition}" if batch.condition else ""
     table = Table(
@@ -132,46 +105,6 @@ def localize(
     ):
         table.add_row(label, str(idx), str(chunk), f"{conf:.3f}")
     print_table(console, table)
-
-
-def _job_line(job: Job) -> str:
-    chunks = f", {job.chunks_done}/{job.chunks_total} parts" if job.chunks_total > 1 else ""
-    detail = f" {job.progress.detail}" if job.progress.detail and not job.done else ""
-    return f"{job.map}: {job.state} ({job.stage}{chunks}){detail}"
-
-
-def _wait(gp: GridplaceClient, job: Job, timeout: float) -> Job:
-    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-               TaskProgressColumn(), TimeElapsedColumn())  # fmt: skip
-    with Progress(*columns, console=console, transient=True) as bar:
-        task = bar.add_task(_job_line(job), total=1.0, completed=job.progress.fraction)
-
-        def update(j: Job) -> None:
-            bar.update(task, description=_job_line(j), completed=j.progress.fraction)
-
-        return gp.wait_for_job(job.id, timeout=timeout, on_update=update)
-
-
-def _version_status(gp: GridplaceClient, job: Job) -> str:
-    """Whether the job's version is the one its map serves, and how to make it so."""
-    active = gp.get_map(job.map).active_version
-    if active == job.version:
-        return f"version {job.version} is active (served for map {job.map})"
-    now = f"map {job.map} serves version {active}" if active is not None else f"map {job.map} serves no version"
-    return (f"version {job.version} is NOT active ({now}); activate it with: "
-            f"gridplace client activate {job.map} {job.version}")  # fmt: skip
-
-
-def _report_job(gp: GridplaceClient, job: Job, as_json: bool) -> None:
-    if as_json:
-        _print_json(job)
-    elif job.version is not None:
-        console.print(f"job {job.id}: {job.map} {job.state} → {_version_status(gp, job)}",
-                      highlight=False, soft_wrap=True)  # fmt: skip
-    else:
-        console.print(f"job {job.id}: {job.map} {job.state} ({job.stage})", highlight=False)
-    if job.state == "failed":
-        raise JobFailedError(f"job {job.id} failed: {job.error}", job_id=job.id)
 
 
 @app.command()
@@ -214,7 +147,7 @@ def upload(
     wait: Annotated[
         bool, typer.Option("--wait/--no-wait", help="follow the job until it ends")
     ] = False,
-    wait_timeout: Annotated[float, typer.Option(help="seconds to wait with --wait")] = 3600.0,
+    wait_timeout: WaitTimeout = 3600.0,
     url: Url = None,
     token: Token = None,
     timeout: Timeout = 30.0,
@@ -233,20 +166,20 @@ def upload(
             raise InvalidInputError(f"--param must be KEY=VALUE, got {item!r}")
         extra[key.strip()] = value.split(",") if key.strip() == "periods" else value.strip()
     options = options_of(None, {**extra, **{k: v for k, v in given.items() if v is not None}})
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         size = sum(r.stat().st_size for r in routes if r.is_file())
         with console.status(f"uploading {', '.join(r.name for r in routes)} ({size:,} B)"):
             job = gp.upload_route(map_name, routes[0] if len(routes) == 1 else routes, options,
                                   idempotency_key=idempotency_key, places=places)  # fmt: skip
         if not wait:
             if as_json:
-                _print_json(job)
+                print_json(job)
             else:
                 console.print(f"job {job.id} {job.state}; follow it with: gridplace client jobs {job.id} --wait",
                               highlight=False)  # fmt: skip
             return
-        job = _wait(gp, job, wait_timeout)
-        _report_job(gp, job, as_json)
+        job = follow_job(gp, job, wait_timeout)
+        report_job(gp, job, as_json)
 
 
 @app.command()
@@ -260,7 +193,7 @@ def jobs(
     wait: Annotated[
         bool, typer.Option("--wait/--no-wait", help="wait until each job ends")
     ] = False,
-    wait_timeout: Annotated[float, typer.Option(help="seconds to wait with --wait")] = 3600.0,
+    wait_timeout: WaitTimeout = 3600.0,
     url: Url = None,
     token: Token = None,
     timeout: Timeout = 30.0,
@@ -268,14 +201,14 @@ def jobs(
 ) -> None:
     """Show training jobs (state, stage, fit progress, retries, version); exit 2 if one of
     the given jobs failed. Without ids: the newest jobs (--map, --state, --limit)."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         if not job_ids:
             found = gp.list_jobs(map_name, state, limit).jobs
         else:
-            found = [(_wait(gp, gp.get_job(j), wait_timeout) if wait else gp.get_job(j))
+            found = [(follow_job(gp, gp.get_job(j), wait_timeout) if wait else gp.get_job(j))
                      for j in job_ids]  # fmt: skip
     if as_json:
-        _print_json(found)
+        print_json(found)
     else:
         table = Table()
         for col in ("job", "map", "state", "stage", "progress", "retries", "version", "created",
@@ -284,8 +217,8 @@ def jobs(
         for j in found:
             done = f"{j.progress.fraction:.0%}" + (f" {j.progress.detail}" if not j.done else "")
             table.add_row(j.id, j.map, j.state, j.stage, done, str(len(j.retries)),
-                          str(j.version) if j.version is not None else "-", _when(j.created_at),
-                          _when(j.finished_at), j.error or "")  # fmt: skip
+                          str(j.version) if j.version is not None else "-", when(j.created_at),
+                          when(j.finished_at), j.error or "")  # fmt: skip
         print_table(console, table)
     failed = [j.id for j in found if j.state == "failed"]
     if failed and job_ids:
@@ -296,11 +229,11 @@ def jobs(
 @cli_errors
 def status(url: Url = None, timeout: Timeout = 10.0, as_json: AsJson = False) -> None:
     """Liveness and readiness of the server (exit 2 if it cannot be reached)."""
-    with _client(url, None, timeout) as gp:
+    with open_client(url, None, timeout) as gp:
         gp.health()
         ready = gp.ready()
     if as_json:
-        _print_json(ready)
+        print_json(ready)
         return
     loaded = ", ".join(f"{m} v{v}" for m, v in ready.loaded.items()) or "no map"
     console.print(f"{gp.base_url}: alive, {'ready' if ready.ready else 'NOT ready'}; serving {loaded}"
@@ -314,17 +247,17 @@ def maps(
     url: Url = None, token: Token = None, timeout: Timeout = 30.0, as_json: AsJson = False
 ) -> None:
     """List every map with its active version."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         found = gp.list_maps()
     if as_json:
-        _print_json(found)
+        print_json(found)
         return
     table = Table()
     for col in ("map", "active", "versions", "created"):
         table.add_column(col)
     for m in found:
         active = str(m.active_version) if m.active_version is not None else "-"
-        table.add_row(m.name, active, ",".join(map(str, m.versions)), _when(m.created_at))
+        table.add_row(m.name, active, ",".join(map(str, m.versions)), when(m.created_at))
     if found:
         print_table(console, table)
     else:
@@ -341,10 +274,10 @@ def versions(
     as_json: AsJson = False,
 ) -> None:
     """List the versions of MAP: size, footprint, training metrics."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         found = gp.list_versions(map_name)
     if as_json:
-        _print_json(found)
+        print_json(found)
         return
     table = Table(title=f"map {map_name}")
     for col in ("version", "active", "kind", "preset", "frames", "traversals", "d",
@@ -356,7 +289,7 @@ def versions(
                       str(v.params.get("encoder_preset") or "-"), str(v.n_frames),
                       str(v.n_traversals), str(v.n_features),
                       f"{v.footprint.get('actual_bytes', v.artifact_bytes):,}",
-                      f"{p0:.3f}" if isinstance(p0, (int, float)) else "-", _when(v.created_at))  # fmt: skip
+                      f"{p0:.3f}" if isinstance(p0, (int, float)) else "-", when(v.created_at))  # fmt: skip
     print_table(console, table)
 
 
@@ -371,10 +304,10 @@ def activate(
     as_json: AsJson = False,
 ) -> None:
     """Serve VERSION of MAP (promote or roll back; the server hot-swaps)."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         v = gp.activate(map_name, version)
     if as_json:
-        _print_json(v)
+        print_json(v)
     else:
         console.print(f"map {v.map}: version {v.version} is active", highlight=False)
 
@@ -388,7 +321,7 @@ def deactivate(
     timeout: Timeout = 30.0,
 ) -> None:
     """Take MAP out of service (localize answers 409 until a version is activated)."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         gp.deactivate(map_name)
     console.print(f"map {map_name}: out of service", highlight=False)
 
@@ -403,12 +336,10 @@ def delete(
     timeout: Timeout = 30.0,
 ) -> None:
     """Delete an inactive VERSION of MAP."""
-    with _client(url, token, timeout) as gp:
+    with open_client(url, token, timeout) as gp:
         gp.delete_version(map_name, version)
     console.print(f"map {map_name}: version {version} deleted", highlight=False)
 
-
-from service.cli.append_command import append  # noqa: E402 - uses the helpers above
 
 app.command()(append)
 
