@@ -58,10 +58,7 @@ position (a micro-batch of a fleet), with the answers of each adapter's own :met
 
 from __future__ import annotations
 
-import threading
-import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -75,9 +72,10 @@ from service.encoding.conditions import (
 )
 from service.encoding.adaptation_step import LAST as _LAST
 from service.encoding.adaptation_step import MEAN as _MEAN
-from service.encoding.adaptation_step import MIN_SCALE_RATIO, step
+from service.encoding.adaptation_step import step
 from service.encoding.adaptation_step import VAR as _VAR
 from service.encoding.normalization import Normalizer
+from service.encoding.route_statistics import RouteStatistics, route_statistics, shared_route
 from service.errors import InvalidParameterError
 
 DEFAULT_ALPHA = 0.02
@@ -122,58 +120,6 @@ class AdaptationConfig(BaseModel):
     )  # fmt: skip
 
 
-@dataclass(frozen=True, eq=False)
-class RouteStatistics:
-    """The route's column statistics in float32 (the precision models store them in), shared
-    by every adapter of one model."""
-
-    mean: np.ndarray
-    scale: np.ndarray
-    var: np.ndarray
-    floor: np.ndarray  # the smallest variance a column is divided by
-
-    @classmethod
-    def of(cls, mean: np.ndarray, scale: np.ndarray) -> RouteStatistics:
-        mu = np.array(mean, dtype=np.float32).ravel()
-        sigma = np.array(scale, dtype=np.float32).ravel()
-        if mu.shape != sigma.shape or not np.all(sigma > 0):
-            raise InvalidParameterError("route statistics need one positive scale per mean")
-        for a in (mu, sigma):
-            a.flags.writeable = False
-        var, floor = sigma**2, (MIN_SCALE_RATIO * sigma) ** 2
-        var.flags.writeable = floor.flags.writeable = False
-        return cls(mu, sigma, var, floor)
-
-    @property
-    def nbytes(self) -> int:
-        return int(4 * self.mean.nbytes)
-
-
-_shared: dict[int, tuple[weakref.ref[Normalizer], RouteStatistics]] = {}
-_shared_lock = threading.Lock()
-
-
-def _shared_route(front: Normalizer) -> RouteStatistics:
-    """One :class:`RouteStatistics` per normaliser object, for as long as it lives."""
-    key = id(front)
-    with _shared_lock:
-        hit = _shared.get(key)
-        if hit is not None and hit[0]() is front:
-            return hit[1]
-        route = RouteStatistics.of(front.mean, front.scale)
-        _shared[key] = (weakref.ref(front, lambda _, key=key: _shared.pop(key, None)), route)
-        return route
-
-
-def route_statistics(model: Any) -> Normalizer | None:
-    """The column statistics a fitted model normalises queries with (``None``: it has none,
-    e.g. trained with ``normalize=False``)."""
-    front = getattr(model, "normalizer_", None)
-    if isinstance(front, Normalizer):
-        return front
-    return getattr(front, "normalizer", None)
-
-
 def adapts(model: Any, requested: bool | None, default: bool, what: str = "this model") -> bool:
     """Whether queries to ``model`` are adapted: as ``requested``, or ``default`` when not
     said. A model without route statistics has nothing to adapt to: it goes unadapted by
@@ -216,7 +162,7 @@ class AppearanceAdapter:
                 "appearance adaptation needs the route's column statistics, and this model "
                 "keeps none (it was trained without normalisation)"
             )
-        return cls(_shared_route(stats), config=config)
+        return cls(shared_route(stats), config=config)
 
     @classmethod
     def for_reference(cls, X: np.ndarray, config: AdaptationConfig | None = None) -> AppearanceAdapter:

@@ -10,12 +10,12 @@ from hypothesis.extra.numpy import arrays
 
 from service.encoding import ModelParams, PhaseEncoder, build_model
 from service.encoding.adaptation import (
-    MIN_SCALE_RATIO,
     AdaptationConfig,
     AppearanceAdapter,
     adapt_drive,
     route_statistics,
 )
+from service.encoding.adaptation_step import MIN_SCALE_RATIO
 from service.encoding.synthetic import smooth_route
 from service.errors import InvalidParameterError
 
