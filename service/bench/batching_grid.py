@@ -36,7 +36,7 @@ def measure_wait_grid(data_dir: Path, token: str, qry: np.ndarray, period: int, 
                       rounds: int = 5) -> dict[str, Any]:  # fmt: skip
     """Per wait (ms, as a string key; the shortest also as ``"<ms> (repeat)"``, a second
     identical server): merged stream throughput and unary latency."""
-    from service.bench.grpc_bench import _merge, _throughput, _unary
+    from service.bench.grpc_load import merge_rounds, stream_throughput, unary_latency
 
     with contextlib.ExitStack() as stack:
         servers = []
@@ -54,18 +54,19 @@ def measure_wait_grid(data_dir: Path, token: str, qry: np.ndarray, period: int, 
         per = max(n_streams, frames // rounds)
         for _ in range(rounds):
             for key, (_wait, target, _url, pid) in zip(keys, servers, strict=True):
-                streams = _throughput(target, qry, period, per, n_streams, window, pid=pid)
+                streams = stream_throughput(target, qry, period, per, n_streams, window, pid=pid)
                 got[key].append({"streams": streams,
-                                 "unary": asyncio.run(_unary(target, qry, 100))})  # fmt: skip
+                                 "unary": asyncio.run(unary_latency(target, qry, 100))})  # fmt: skip
         out = {}
         for key, (_wait, _target, url, _pid) in zip(keys, servers, strict=True):
             parts = got[key]
-            streams = _merge([p["streams"] for p in parts])
+            streams = merge_rounds([p["streams"] for p in parts])
             streams.pop("index")
             out[key] = {
                 "streams": streams,
                 "rounds_frames_per_s": [p["streams"]["frames_per_s"] for p in parts],
-                "unary_sequential_client_ms": _merge([p["unary"] for p in parts])["client_ms"],
+                "unary_sequential_client_ms":
+                    merge_rounds([p["unary"] for p in parts])["client_ms"],
                 "mean_batch_size": _mean_batch(url),
             }
     return out
