@@ -23,6 +23,7 @@ from service.api.schemas import (
 )
 from service.core.appends import append_traversals
 from service.core.retrains import retrain_traversals
+from service.core.route_submission import submit_route
 from service.core.localization import LocalizationService
 from service.core.traversal_upload import UploadedFile
 from service.errors import RequestValidationError
@@ -123,7 +124,7 @@ async def upload_route(
         routes, places, options = _route_form(form)
         job = await run_in_threadpool(
             functools.partial(
-                _service(request).submit_route, name, _uploaded(routes),
+                submit_route, _service(request), name, _uploaded(routes),
                 options.training_params(), options.extractor_config(), idempotency_key,
                 places=_uploaded(places), **options.upload_flags(),
             )

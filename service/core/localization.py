@@ -1,14 +1,14 @@
-"""THE service layer: every transport (REST now, gRPC later) calls these methods and nothing
+"""THE service layer: every transport (REST, gRPC) calls these methods, and the functions of
+:mod:`service.core` that take this service (a route upload, an append, a retrain), and nothing
 below them, so validation, errors, metrics and hot-swap semantics are the same everywhere."""
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import IO, TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,9 +16,7 @@ from service.core.metrics import ServiceMetrics
 from service.core.model_store import LoadedModel, ModelStore
 from service.core.query_conditions import standardise
 from service.core.request_work import check_request
-from service.core.traversal_upload import UploadedFile, parse_traversals, store_traversals
-from service.core.uploads import relative_to
-from service.encoding import ModelParams, check_descriptors, check_route
+from service.encoding import check_descriptors
 from service.errors import (
     ArtifactError,
     ConflictError,
@@ -28,10 +26,10 @@ from service.errors import (
     PayloadTooLargeError,
     UnavailableError,
 )
-from service.imaging import extract_blobs, image_pixels, make_extractor, parse_extractor_config
+from service.imaging import extract_blobs, image_pixels
 from service.registry.job_table import MAX_PAGE as MAX_JOB_PAGE
 from service.registry.job_cursor import encode_cursor
-from service.registry.models import JOB_STATES, RouteSource
+from service.registry.models import JOB_STATES
 from service.registry.names import check_map_name
 from service.settings import Settings
 
@@ -259,67 +257,7 @@ class LocalizationService:
             condition=used,
         )  # fmt: skip
 
-    # -- training ---------------------------------------------------------------------
-    def submit_route(
-        self,
-        name: str,
-        files: Sequence[UploadedFile],
-        params: dict[str, Any],
-        extractor: dict[str, Any] | None = None,
-        idempotency_key: str | None = None,
-        *,
-        places: Sequence[UploadedFile] = (),
-        allow_dimension_change: bool = False,
-        force: bool = False,
-    ) -> JobInfo:
-        """Validate and store an uploaded route, then queue its training (202 semantics).
-
-        ``files``: one descriptor file (or image archive) per traversal of the route, frame-
-        aligned unless ``places`` gives one place-index file per traversal
-        (:mod:`service.core.traversal_upload`). A route of another descriptor width than the
-        map's active version is refused (409) unless ``allow_dimension_change``. The same
-        route with the same parameters and extractor as an earlier upload answers with that
-        upload's job (``reused``; its version when it succeeded) instead of training a copy,
-        unless ``force``."""
-        check_map_name(name)
-        if idempotency_key is not None and not 1 <= len(idempotency_key) <= 200:
-            raise InvalidInputError("Idempotency-Key must be 1-200 characters")
-        model_params = ModelParams.parse(**params)
-        self.backend.check_available()  # Redis down → 503 before any heavy work
-        config = parse_extractor_config(extractor).model_dump() if extractor else None
-        image_config = parse_extractor_config(config)  # the default for image archives
-        extractor_once = functools.cache(lambda: make_extractor(config))  # built (checked) once
-
-        def check_width(n_features: int) -> None:
-            """What the width decides, before the data is read (npy header, image count)."""
-            d = image_config.n_features if config is not None else None  # no network built
-            if d is not None and d != n_features:
-                raise DimensionMismatchError(
-                    f"the extractor {image_config.kind} produces d={d} but the uploaded "
-                    f"descriptors have d={n_features}", expected=d, got=n_features,
-                )  # fmt: skip
-            self.registry.check_width(name, n_features, allow_dimension_change)
-
-        def check_params(n_places: int, n_features: int) -> None:
-            check_route(model_params, n_places, n_features)
-
-        limit = self.settings.max_upload_mb * 1024 * 1024
-        tr, source_kind = parse_traversals(files, places, limit, extractor_once, check_width,
-                                           check_params, image_config.n_features)  # fmt: skip
-        if source_kind == "images" and config is None:
-            config = image_config.model_dump()
-        data_dir = self.settings.data_dir
-        stored = store_traversals(data_dir, tr, source_kind)  # only valid data lands
-        places_file = None if stored.places is None else relative_to(stored.places, data_dir)
-        source = RouteSource(content_sha256=stored.content_sha256, n_frames=stored.n_places,
-                             n_features=stored.n_features,
-                             allow_dimension_change=allow_dimension_change,
-                             n_traversals=stored.n_traversals, places=places_file)  # fmt: skip
-        job = self.backend.submit(name, stored.route, model_params, config, idempotency_key,
-                                  source=source, force=force)  # fmt: skip
-        self.metrics.jobs_submitted.inc()
-        return job
-
+    # -- training jobs (a route upload is :func:`service.core.route_submission.submit_route`)
     def get_job(self, job_id: str) -> JobInfo:
         job = self.backend.get_job(job_id)
         self._observe(job)
