@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib.util
 import math
 
-from service.encoding.chunked import plan_chunks
+from service.encoding.chunk_training import plan_chunks
 from service.encoding.factory import ModelParams
 from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, validate_periods

@@ -22,13 +22,13 @@ from typing import Any, cast
 import numpy as np
 
 from service.encoding import ModelParams, PlaceRecognizer, build_model, precision_at
-from service.encoding.chunked import (
-    ChunkedPlaceEncoder,
+from service.encoding.chunk_training import (
     fit_chunk_classifier,
     fit_chunk_encoder,
     fit_front_end,
     plan_chunks,
 )
+from service.encoding.chunked import ChunkedPlaceEncoder
 from service.encoding.conditions import conditions_of_rows
 from service.encoding.encoder import PhaseEncoder
 from service.encoding.progress import is_per_class

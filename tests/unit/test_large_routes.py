@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from service.encoding import ChunkedPlaceEncoder
-from service.encoding.chunked import check_route
+from service.encoding.chunk_training import check_route
 from service.encoding.synthetic import route_queries, write_route
 from service.errors import NonFiniteInputError
 

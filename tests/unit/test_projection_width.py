@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.encoding import ModelParams, build_model, save_model
-from service.encoding.chunked import fit_front_end, plan_chunks
+from service.encoding.chunk_training import fit_front_end, plan_chunks
 from service.encoding.projection_width import ROW_FRACTION, choose_width, model_bytes
 from service.encoding.synthetic import smooth_route
 
