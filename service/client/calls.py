@@ -239,27 +239,14 @@ def upload_route(
     """One route file, or several (traversals of the same places: one ``file`` field each,
     ``names`` their upload names), and optionally one place-index file (or int array) per
     traversal as ``places`` fields."""
-    routes = list(route) if isinstance(route, list | tuple) else [route]
+    routes = _as_list(route)
     if not routes:
         raise EmptyInputError("upload_route needs at least one route file")
-    if places is not None and len(places) != len(routes):
-        raise InvalidInputError(
-            f"{len(routes)} route file(s) need {len(routes)} place-index file(s) (one per "
-            f"file, in the same order), got {len(places)}", files=len(routes),
-            places=len(places),
-        )  # fmt: skip
-    opened: list[IO[bytes]] = []
-    try:
-        given = list(names) if names else [filename if len(routes) == 1 else None] * len(routes)
-        files = [("file", _upload_part(r, given[i] if i < len(given) else None,
-                                       f"route-{i + 1}.npy" if len(routes) > 1 else "route.npy",
-                                       opened)) for i, r in enumerate(routes)]  # fmt: skip
-        files += [("places", _upload_part(p, None, f"places-{i + 1}.npy", opened))
-                  for i, p in enumerate(places or [])]  # fmt: skip
-    except BaseException:
-        for fh in opened:
-            fh.close()
-        raise
+    given = list(names) if names else ([filename] if len(routes) == 1 else [])
+    files, opened = _upload_parts(
+        routes, places, given, lambda i: f"route-{i + 1}.npy" if len(routes) > 1 else "route.npy",
+        "route file(s)", "file",
+    )  # fmt: skip
     headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
     return Call("POST", f"/v1/maps/{_seg(map_name)}/routes", _reader(Job), admin=True, kwargs={
         "files": files, "data": options.form(), "headers": headers}, files=opened)  # fmt: skip
@@ -272,25 +259,11 @@ def append_traversals(
     """One traversal file (or array), or several, each optionally with its place index, and
     the append options as form fields; answered by the new version, or with ``retrain`` by
     the training job."""
-    routes = list(traversals) if isinstance(traversals, list | tuple) else [traversals]
+    routes = _as_list(traversals)
     if not routes:
         raise EmptyInputError("append_traversals needs at least one traversal")
-    if places is not None and len(places) != len(routes):
-        raise InvalidInputError(
-            f"{len(routes)} traversal(s) need {len(routes)} place-index file(s) (one per "
-            f"traversal, in the same order), got {len(places)}", files=len(routes),
-            places=len(places),
-        )  # fmt: skip
-    opened: list[IO[bytes]] = []
-    try:
-        files = [("file", _upload_part(r, None, f"traversal-{i + 1}.npy", opened))
-                 for i, r in enumerate(routes)]  # fmt: skip
-        files += [("places", _upload_part(p, None, f"places-{i + 1}.npy", opened))
-                  for i, p in enumerate(places or [])]  # fmt: skip
-    except BaseException:
-        for fh in opened:
-            fh.close()
-        raise
+    files, opened = _upload_parts(routes, places, [], lambda i: f"traversal-{i + 1}.npy",
+                                  "traversal(s)", "traversal")  # fmt: skip
     path = f"/v1/maps/{_seg(map_name)}/versions/{int(version)}/traversals"
     return Call("POST", path, _reader(Job if options.retrain else Version), admin=True,
                 kwargs={"files": files, "data": options.form()}, files=opened)  # fmt: skip
@@ -313,6 +286,36 @@ def append_options(tags: Sequence[str], extend: bool, whiten: bool | None,
         raise InvalidParameterError(f"invalid append options: {_messages(exc)}") from exc
     options.check_retrain()
     return options
+
+
+def _as_list(source: RouteSource | Sequence[RouteSource]) -> list[RouteSource]:
+    return list(source) if isinstance(source, list | tuple) else [source]
+
+
+def _upload_parts(
+    routes: list[RouteSource], places: Sequence[RouteSource] | None, names: list[str | None],
+    default: Callable[[int], str], counted: str, per: str,
+) -> tuple[list[tuple[str, tuple[str, bytes | IO[bytes]]]], list[IO[bytes]]]:
+    """The ``file`` part of every route (named ``names[i]``, else by its file, else
+    ``default(i)``) and the ``places`` part of each, and the files opened for streaming (all
+    closed again if a part fails); ``counted`` and ``per`` word a count mismatch."""
+    if places is not None and len(places) != len(routes):
+        raise InvalidInputError(
+            f"{len(routes)} {counted} need {len(routes)} place-index file(s) (one per "
+            f"{per}, in the same order), got {len(places)}", files=len(routes),
+            places=len(places),
+        )  # fmt: skip
+    opened: list[IO[bytes]] = []
+    try:
+        files = [("file", _upload_part(r, names[i] if i < len(names) else None, default(i),
+                                       opened)) for i, r in enumerate(routes)]  # fmt: skip
+        files += [("places", _upload_part(p, None, f"places-{i + 1}.npy", opened))
+                  for i, p in enumerate(places or [])]  # fmt: skip
+    except BaseException:
+        for fh in opened:
+            fh.close()
+        raise
+    return files, opened
 
 
 def _upload_part(source: RouteSource, filename: str | None, default: str,
