@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from service.core.traversal_upload import UploadedFile, read_places
+from service.core.traversal_upload import UploadedFile, check_file_counts, read_places
 from service.core.uploads import parse_route, relative_to, store_array, store_descriptors
 from service.encoding.conditions import condition_key
 from service.errors import (
@@ -71,13 +71,7 @@ def read_traversals(service: LocalizationService, name: str, version: int,
     registry = service.registry
     tags = options.tags()
     base = registry.get_version(name, version)  # 404 before anything is read
-    if not files:
-        raise InvalidInputError("send the traversal as one or more 'file' fields")
-    if places and len(places) != len(files):
-        raise InvalidInputError(
-            f"{len(files)} traversal file(s) need {len(files)} 'places' file(s) (one per file, "
-            f"in the same order), got {len(places)}", files=len(files), places=len(places),
-        )  # fmt: skip
+    check_file_counts(files, places, "traversal")
     width = int(base.n_features)
     config = base.extractor
     image_config = parse_extractor_config(config)

@@ -47,6 +47,19 @@ class StoredTraversals:
     source_kind: str  # "npy" | "images"
 
 
+def check_file_counts(files: Sequence[UploadedFile], places: Sequence[UploadedFile],
+                      what: str) -> None:  # fmt: skip
+    """At least one ``file`` field, and one ``places`` file per file when any is sent;
+    ``what`` names the files in the message (``"route"``, ``"traversal"``)."""
+    if not files:
+        raise InvalidInputError(f"send the {what} as one or more 'file' fields")
+    if places and len(places) != len(files):
+        raise InvalidInputError(
+            f"{len(files)} {what} file(s) need {len(files)} 'places' file(s) (one per file, in "
+            f"the same order), got {len(places)}", files=len(files), places=len(places),
+        )  # fmt: skip
+
+
 def parse_traversals(
     files: Sequence[UploadedFile],
     places: Sequence[UploadedFile],
@@ -58,13 +71,7 @@ def parse_traversals(
 ) -> tuple[Traversals, str]:
     """The validated traversals of an upload and ``"npy"`` or ``"images"``; ``limit_bytes``
     bounds all files together (descriptors as float32)."""
-    if not files:
-        raise InvalidInputError("send the route as one or more 'file' fields")
-    if places and len(places) != len(files):
-        raise InvalidInputError(
-            f"{len(files)} route file(s) need {len(files)} 'places' file(s) (one per file, in "
-            f"the same order), got {len(places)}", files=len(files), places=len(places),
-        )  # fmt: skip
+    check_file_counts(files, places, "route")
     several = len(files) > 1
     first: list[tuple[int, int]] = []
     arrays: list[np.ndarray] = []
