@@ -9,14 +9,23 @@ from typing import Annotated
 import typer
 
 from service.cli.client_job_follow import follow_job, report_job
-from service.cli.client_options import AsJson, Timeout, Token, Url, console, open_client, print_json
+from service.cli.client_options import (
+    AsJson,
+    MapName,
+    Timeout,
+    Token,
+    Url,
+    console,
+    open_client,
+    print_json,
+)
 from service.cli.console import plural
 from service.cli.errors import cli_errors
 
 
 @cli_errors
 def append(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     version: Annotated[int, typer.Argument(metavar="V", help="the version appended to")],
     traversals: Annotated[list[Path], typer.Argument(
         metavar="TRAVERSAL", help=".npy/.npz descriptors of the version's width, or a .zip/.tar "
@@ -44,18 +53,17 @@ def append(
     """Append TRAVERSAL(s) to version V of MAP without retraining: a new version (exit 2 on
     bad input: another width, places out of range, a tag that is not KEY=VALUE). With
     --retrain: a training job over every traversal instead (exit 2 if it fails)."""
-    if retrain:
-        with open_client(url, token, timeout) as gp:
-            with console.status(f"uploading {', '.join(t.name for t in traversals)} to retrain"):
-                job = gp.retrain_traversals(map_name, version, traversals if len(traversals) > 1
-                                            else traversals[0], places=places, tags=tag or [],
+    sent = traversals if len(traversals) > 1 else traversals[0]
+    names = ", ".join(t.name for t in traversals)
+    with open_client(url, token, timeout) as gp:
+        if retrain:
+            with console.status(f"uploading {names} to retrain"):
+                job = gp.retrain_traversals(map_name, version, sent, places=places, tags=tag or [],
                                             extend=extend)  # fmt: skip
             report_job(gp, follow_job(gp, job, wait_timeout), as_json)
-        return
-    with open_client(url, token, timeout) as gp:
-        with console.status(f"appending {', '.join(t.name for t in traversals)}"):
-            v = gp.append_traversals(map_name, version, traversals if len(traversals) > 1
-                                     else traversals[0], places=places, tags=tag or [],
+            return
+        with console.status(f"appending {names}"):
+            v = gp.append_traversals(map_name, version, sent, places=places, tags=tag or [],
                                      extend=extend, whiten=whiten, activate=activate)  # fmt: skip
     if as_json:
         print_json(v)

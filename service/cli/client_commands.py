@@ -18,6 +18,7 @@ from service.cli.client_job_follow import follow_job, report_job
 from service.cli.client_options import (
     AsJson,
     ConditionOption,
+    MapName,
     Timeout,
     Token,
     Url,
@@ -65,7 +66,7 @@ def _load_queries(path: Path, rows: str | None) -> tuple[np.ndarray, int]:
 @app.command()
 @cli_errors
 def localize(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     npy: Annotated[
         Path | None, typer.Option("--npy", help=".npy query descriptors (one per row)")
     ] = None,
@@ -110,7 +111,7 @@ def localize(
 @app.command()
 @cli_errors
 def upload(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     routes: Annotated[list[Path], typer.Argument(
         metavar="ROUTE", help=".npy/.npz descriptors or .zip/.tar of images; several files are traversals of "
         "the same places (frame-aligned, or with --places)", show_default=False)],
@@ -267,7 +268,7 @@ def maps(
 @app.command()
 @cli_errors
 def versions(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     url: Url = None,
     token: Token = None,
     timeout: Timeout = 30.0,
@@ -296,7 +297,7 @@ def versions(
 @app.command()
 @cli_errors
 def activate(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     version: Annotated[int, typer.Argument(help="version to serve")],
     url: Url = None,
     token: Token = None,
@@ -315,7 +316,7 @@ def activate(
 @app.command()
 @cli_errors
 def deactivate(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     url: Url = None,
     token: Token = None,
     timeout: Timeout = 30.0,
@@ -329,7 +330,7 @@ def deactivate(
 @app.command()
 @cli_errors
 def delete(
-    map_name: Annotated[str, typer.Argument(metavar="MAP", help="map name")],
+    map_name: MapName,
     version: Annotated[int, typer.Argument(help="an inactive version")],
     url: Url = None,
     token: Token = None,

@@ -21,6 +21,7 @@ Url = Annotated[str | None, typer.Option("--url", envvar="GRIDPLACE_URL", show_e
                                          help="server URL (default http://127.0.0.1:8080)")]  # fmt: skip
 Token = Annotated[str | None, typer.Option("--token", envvar="GRIDPLACE_ADMIN_TOKEN", show_envvar=True,
                                            show_default=False, help="admin bearer token")]  # fmt: skip
+MapName = Annotated[str, typer.Argument(metavar="MAP", help="map name")]
 Timeout = Annotated[float, typer.Option(help="seconds per request")]
 AsJson = Annotated[bool, typer.Option("--json", help="print the server's answer as JSON")]
 WaitTimeout = Annotated[float, typer.Option(help="seconds to wait with --wait")]
