@@ -86,7 +86,8 @@ def _serve_child(route: str, registry: str, n_queries: int, n_single: int, batch
     with threadpool_limits(1):
         singles = iter(range(10**9))
         for search in ("ivf", "flat") if plan.ivf is not None else ("flat",):
-            loc = model.localize(Q, search=search) if search == "ivf" else _flat(model, Q)
+            loc = (model.localize(Q, search=search) if search == "ivf" or plan.ivf is None
+                   else _flat(model, Q))  # the reference scan of a frame-per-class model
             reps = n_single if search == "ivf" or n < 200_000 else max(5, n_single // 20)
             res[search] = {
                 "precision_at_5": precision_at(loc.index, rows, 5),
@@ -156,9 +157,10 @@ def _sweep(model: Any, plan: Any, route: str, n_queries: int, noises: list[float
 
 
 def _flat(model: Any, Q: np.ndarray) -> Any:
-    """The flat scan of every query, 64 at a time however long the route (one pass over the
-    weights per 64 queries instead of per 4 at 1M frames: the plan's block bound is for
-    serving, this is the reference run of a benchmark)."""
+    """The flat scan of every query of a model with one class per frame, 64 at a time however
+    long the route (one pass over the weights per 64 queries instead of per 4 at 1M frames:
+    the plan's block bound is for serving, this is the reference run of a benchmark). Not for
+    a code with a label table, whose decode enumerates every frame per query."""
     from service.encoding import serving_plan
 
     saved = serving_plan._BLOCK_SCORES
