@@ -40,7 +40,9 @@ def _validation_body(errors: list[Any]) -> dict[str, Any]:
 
 async def _gridplace(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, GridplaceError)
-    if exc.http_status >= 500:
+    if isinstance(exc, CapacityError):  # expected under load: the caller is told to retry
+        log.warning("%s: %s", exc.code, exc.message)
+    elif exc.http_status >= 500:
         log.error("%s: %s", exc.code, exc.message)
     return error_response(exc)
 
