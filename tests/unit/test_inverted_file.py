@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from unittest.mock import patch
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 
 from service.encoding import PhaseEncoder, load_model, save_model
 from service.encoding.inverted_file import InvertedFile, default_nlist, default_nprobe
+from service.encoding import ivf_scan
 from service.encoding.ivf_scan import search
 from service.encoding.quantization import QuantizedLinear, int8_products, int8_products64
 from service.encoding.serving_plan import DigitBlock, ServingPlan, plan_for
@@ -46,9 +48,19 @@ def brute(rows: Rows, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(2, 300), m=st.integers(1, 12), nlist=st.integers(1, 40),
-       seed=st.integers(0, 2**16), n_queries=st.integers(1, 7), ints=st.booleans())  # fmt: skip
+       seed=st.integers(0, 2**16), n_queries=st.integers(1, 30), ints=st.booleans(),
+       block_rows=st.sampled_from([1, 7, 512]), list_scores=st.sampled_from([1, 50, 1 << 18]))  # fmt: skip
 def test_probing_every_list_is_the_flat_scan(n: int, m: int, nlist: int, seed: int,
-                                             n_queries: int, ints: bool) -> None:  # fmt: skip
+                                             n_queries: int, ints: bool, block_rows: int,
+                                             list_scores: int) -> None:  # fmt: skip
+    """Whatever the blocks of rows and of (frame, query) scores the scans work in."""
+    with (patch.object(ivf_scan, "BLOCK_ROWS", block_rows),
+          patch.object(ivf_scan, "LIST_SCORES", list_scores)):  # fmt: skip
+        _every_list_is_the_flat_scan(n, m, nlist, seed, n_queries, ints)
+
+
+def _every_list_is_the_flat_scan(n: int, m: int, nlist: int, seed: int, n_queries: int,
+                                 ints: bool) -> None:  # fmt: skip
     rng = np.random.default_rng(seed)
     if ints:  # small integers: many exact ties, which must go to the lowest frame
         rows = Rows(rng.integers(-3, 4, (n, m)).astype(np.int8), np.ones(n, np.float32),
