@@ -42,6 +42,14 @@ SCORE_BLOCK_BYTES = 8 * 1024 * 1024  # float64 frame scores of one block of a ba
 MIN_BLOCK_ROWS = 64
 
 
+def block_rows(entries_per_query: int) -> int:
+    """Rows of a batch localized at a time: as many as keep their scores within
+    :data:`SCORE_BLOCK_BYTES` (a model with an inverted file holds a few entries per probed list
+    where a flat scan holds one per frame: 2.5x faster per query at 1M frames in blocks of
+    1,024 rows than of 64), at least :data:`MIN_BLOCK_ROWS`."""
+    return max(MIN_BLOCK_ROWS, SCORE_BLOCK_BYTES // (8 * max(1, int(entries_per_query))))
+
+
 @dataclass(frozen=True)
 class LocalizeResult:
     """Answers for a batch of queries against one map version."""
@@ -244,7 +252,7 @@ class LocalizationService:
         Q, used = standardise(loaded, Q, condition)
         # a batch is scored a block of rows at a time: the (rows, frames) scores of a large
         # batch would otherwise take far more memory than its body did
-        step = max(MIN_BLOCK_ROWS, SCORE_BLOCK_BYTES // (8 * max(1, loaded.n_frames)))
+        step = block_rows(loaded.entries_per_query)
         blocks = [loaded.model.localize(Q[i : i + step]) for i in range(0, Q.shape[0], step)]
         seconds = time.perf_counter() - start
         self.metrics.localize_seconds.labels(map=loaded.map, input=kind).observe(seconds)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 from PIL import Image
 
 from service.encoding import PlaceRecognizer
+from service.encoding.ivf_scan import batch_entries_per_query
 from service.errors import GridplaceError
 from service.imaging import Extractor, extract_blobs, make_extractor
 
@@ -53,6 +54,15 @@ class LoadedModel:
     @property
     def n_frames(self) -> int:
         return int(self.model.n_frames_)
+
+    @property
+    def entries_per_query(self) -> int:
+        """8-byte score entries one query of a batch holds while it is localized: one per
+        route frame, or with an inverted file those of its (query, list) pairs."""
+        ivf = getattr(self.model, "ivf_", None)
+        if ivf is None:
+            return self.n_frames
+        return batch_entries_per_query(ivf.nprobe, self.n_features)
 
     def extractor(self) -> Extractor | None:
         """The version's image extractor (``None`` if it has none); built here only when

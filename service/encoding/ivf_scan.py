@@ -60,6 +60,14 @@ def _finish(dg: Scorer, prod: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return S
 
 
+def batch_entries_per_query(nprobe: int, n_features: int) -> int:
+    """8-byte entries one query of a batch holds while the batch is scanned: its (query, list)
+    pairs' arrays (at most 16 of ``nprobe`` entries alive at once) and its rows (float64 and
+    float32 copies of ``n_features``); a list's scores and the scan's row buffers are bounded
+    apart (:data:`LIST_SCORES`, :data:`BLOCK_ROWS`), whatever the batch."""
+    return 16 * int(nprobe) + int(n_features)
+
+
 def _one_query_products(dg: Scorer, z: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Float32 ``z·q_i`` of the rows ``ids``, block by block through two cache-sized buffers."""
     W = dg.weight
