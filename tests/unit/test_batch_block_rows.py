@@ -21,7 +21,8 @@ def _loaded(search_mode: str, route: np.ndarray) -> LoadedModel:
     model = PhaseEncoder(n_patterns=1, rho=1.0, trainer="prototype", code="residue",
                          n_components=24, dtype="int8", temperature=0.028, search=search_mode,
                          nlist=30, nprobe=5).fit(route)  # fmt: skip
-    return LoadedModel(map="m", version=1, model=model, info=None, extractor_config=None)  # type: ignore[arg-type]
+    return LoadedModel(map="m", version=1, model=model, info=None,  # type: ignore[arg-type]
+                       extractor_config=None)  # fmt: skip
 
 
 def test_an_inverted_file_holds_its_pairs_entries_not_every_frames() -> None:

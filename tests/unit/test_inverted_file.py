@@ -49,7 +49,8 @@ def brute(rows: Rows, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(2, 300), m=st.integers(1, 12), nlist=st.integers(1, 40),
        seed=st.integers(0, 2**16), n_queries=st.integers(1, 30), ints=st.booleans(),
-       block_rows=st.sampled_from([1, 7, 512]), list_scores=st.sampled_from([1, 50, 1 << 18]))  # fmt: skip
+       block_rows=st.sampled_from([1, 7, 512]),
+       list_scores=st.sampled_from([1, 50, 1 << 18]))  # fmt: skip
 def test_probing_every_list_is_the_flat_scan(n: int, m: int, nlist: int, seed: int,
                                              n_queries: int, ints: bool, block_rows: int,
                                              list_scores: int) -> None:  # fmt: skip
