@@ -177,9 +177,13 @@ class LocalizationService:
     def check_work(self, loaded: LoadedModel, rows: int, states: int = 0, pixels: int = 0,
                    images: int = 0, what: str = "the request") -> None:  # fmt: skip
         """413 naming ``GRIDPLACE_MAX_REQUEST_WORK`` beyond the per-request work budget
-        (:func:`service.core.request_work.check_request`)."""
-        check_request(self.settings.max_request_work, loaded.n_frames, rows, states, pixels,
-                      images, what)  # fmt: skip
+        (:func:`service.core.request_work.check_request`). A drive's filter runs over every
+        route frame; a query alone is scored against the rows its search reads."""
+        frames, label = loaded.n_frames, "map frames"
+        if not states and frames != loaded.frames_per_query:
+            frames, label = loaded.frames_per_query, "rows scored per query"
+        check_request(self.settings.max_request_work, frames, rows, states, pixels, images,
+                      what, label)  # fmt: skip
 
     def query_images(self, loaded: LoadedModel, images: Sequence[tuple[str, bytes]],
                      states: int = 0) -> np.ndarray:  # fmt: skip

@@ -56,6 +56,13 @@ class LoadedModel:
         return int(self.model.n_frames_)
 
     @property
+    def frames_per_query(self) -> int:
+        """The most rows one query is scored against when it is localized: every route frame,
+        or with an inverted file the list centroids and the frames of its probed lists."""
+        ivf = getattr(self.model, "ivf_", None)
+        return self.n_frames if ivf is None else ivf.most_scored()
+
+    @property
     def entries_per_query(self) -> int:
         """8-byte score entries one query of a batch holds while it is localized: one per
         route frame, or with an inverted file those of its (query, list) pairs."""

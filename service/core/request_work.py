@@ -5,7 +5,9 @@ filter (about 4 ns of one core on the development machine). Other work is counte
 unit by what it was measured to cost against it:
 
 * scoring one query frame against one route frame: :data:`SCORE_UNITS` (a batch of ``rows``
-  descriptors, ``/v1/localize``, ``/batch``, gRPC ``Localize``: ``rows × N × 8``);
+  descriptors, ``/v1/localize``, ``/batch``, gRPC ``Localize``: ``rows × N × 8``; on a map
+  with an inverted file N is the most rows one query's search reads: the list centroids and
+  the frames of its ``nprobe`` largest lists);
 * a drive (``/v1/localize/sequence``): ``frames × N × (S + 8)``, S the filter's states
   (:attr:`~service.encoding.sequence.SequenceConfig.n_states`: the speed grid, both directions
   with ``reverse``, plus the stopped state), the 8 for the frames' own scores;
@@ -62,12 +64,14 @@ def check_work(budget_m: float, units: int, what: str, formula: str) -> None:
 
 
 def check_request(budget_m: float, n_frames: int, rows: int, states: int = 0, pixels: int = 0,
-                  images: int = 0, what: str = "the request") -> None:  # fmt: skip
+                  images: int = 0, what: str = "the request",
+                  frames_label: str = "map frames") -> None:  # fmt: skip
     """413 when ``rows`` queries scored against ``n_frames`` route frames (and filtered through
     ``states`` states), plus ``images`` images of ``pixels`` pixels decoded and extracted, cost
-    more than ``budget_m`` million units."""
+    more than ``budget_m`` million units. ``frames_label`` names what ``n_frames`` counts in
+    the message (the rows an inverted file's search reads, for a query alone)."""
     units = request_units(rows, n_frames, states, pixels, images)
-    formula = f"{rows} frames × {n_frames} map frames × ({SCORE_UNITS}" + (
+    formula = f"{rows} frames × {n_frames} {frames_label} × ({SCORE_UNITS}" + (
         f" + {states} states)" if states else ")")
     if images:
         formula += f" + {images} images ({pixels} pixels)"

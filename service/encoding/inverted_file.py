@@ -138,6 +138,13 @@ class InvertedFile:
     def nbytes(self) -> int:
         return int(self.centroids.nbytes + self.members.nbytes + self.offsets.nbytes)
 
+    def most_scored(self, nprobe: int | None = None) -> int:
+        """The most rows one query is scored against: every list centroid, then the frames of
+        its ``nprobe`` lists, at most those of the ``nprobe`` largest."""
+        p = min(self.nlist, self.nprobe if nprobe is None else int(nprobe))
+        sizes = np.sort(np.diff(self.offsets))
+        return self.nlist + int(sizes[sizes.size - p:].sum())
+
     def lists(self, Z: np.ndarray, nprobe: int | None = None) -> np.ndarray:
         """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first (the order of
         lists whose centroids score alike is FAISS's)."""

@@ -94,8 +94,10 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
     Z = rng.standard_normal((5, 8)).astype(np.float32)
     index, score = search(ivf, rows, Z)
     single = [search(ivf, rows, Z[i : i + 1]) for i in range(5)]
+    assert ivf.most_scored(ivf.nlist) == ivf.nlist + n  # every list: every frame, centroids too
     for i, lists in enumerate(ivf.lists(Z)):
         cand = np.sort(ivf.candidates(lists))
+        assert ivf.nlist + cand.size <= ivf.most_scored()  # what the work budget counts
         sub = Rows(rows.weight[cand], rows.rowscale[cand], rows.bias[cand], 1.0)  # type: ignore[index]
         j, s = brute(sub, Z[i : i + 1])
         assert index[i] == cand[j[0]] == single[i][0][0]
