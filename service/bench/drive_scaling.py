@@ -78,6 +78,7 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
     config = SequenceConfig()
     rng = np.random.default_rng([opts.seed, n])
     hits, singles, track_us, frames_windowed, frames_total = [], [], [], 0, 0
+    cold_us, cold_whole = [], []
     for d in range(opts.drives):
         rows = _drive_rows(n, opts.drive_length, rng)
         Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + d)
@@ -90,6 +91,8 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
             c0 = time.process_time_ns()
             est[t] = tracker.update(prep).index
             dt = time.process_time_ns() - c0
+            cold_us.append(dt / 1e3)
+            cold_whole.append(not windowed or tracker.mode == "whole")
             if windowed:
                 track_us.append(dt / 1e3)
                 frames_windowed += 1
@@ -97,7 +100,7 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
         hits.append(np.abs(est - rows) <= 5)
     # the tracker's cost once it tracks, whatever the evidence: drives that start at a known
     # place (start_at), every frame in windows mode
-    seeded_us, seeded_hits = [], []
+    seeded_us, seeded_hits, seeded_all_us, seeded_whole = [], [], [], []
     for d in range(max(1, opts.drives // 2)):
         rows = _drive_rows(n, opts.drive_length, rng)
         Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 500 + d)
@@ -107,8 +110,11 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
             windowed = tracker.mode == "windows"
             c0 = time.process_time_ns()
             index = tracker.update(prep).index
+            dt_us = (time.process_time_ns() - c0) / 1e3
+            seeded_all_us.append(dt_us)
+            seeded_whole.append(not windowed or tracker.mode == "whole")
             if windowed:
-                seeded_us.append((time.process_time_ns() - c0) / 1e3)
+                seeded_us.append(dt_us)
             seeded_hits.append(abs(index - int(rows[t])) <= 5)
     # the whole-route filter's cost per frame (a few frames of the first drive's scores)
     rows = _drive_rows(n, opts.whole_frames, rng)
@@ -134,6 +140,13 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
         "windowed_share": frames_windowed / max(1, frames_total),
         "seeded_tracking_us_per_frame": float(np.median(seeded_us)) if seeded_us else None,
         "seeded_drive_precision": float(np.mean(seeded_hits)) if seeded_hits else None,
+        # every frame, windows mode or not ("whole": the frame ran on, or went to, the route)
+        "seeded_us_mean": float(np.mean(seeded_all_us)),
+        "seeded_us_p99": float(np.percentile(seeded_all_us, 99)),
+        "seeded_whole_share": float(np.mean(seeded_whole)),
+        "unknown_start_us_mean": float(np.mean(cold_us)),
+        "unknown_start_us_p99": float(np.percentile(cold_us, 99)),
+        "unknown_start_whole_share": float(np.mean(cold_whole)),
         "whole_filter_us_per_frame": float(np.median(whole_us)),
         "states": int(whole.speeds.size),
     }
@@ -163,5 +176,6 @@ def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict
         if first["seeded_tracking_us_per_frame"] and last["seeded_tracking_us_per_frame"]:
             out["seeded_tracking_cost_ratio"] = (last["seeded_tracking_us_per_frame"]
                                                  / first["seeded_tracking_us_per_frame"])  # fmt: skip
+        out["seeded_mean_cost_ratio"] = last["seeded_us_mean"] / first["seeded_us_mean"]
         out["whole_cost_ratio"] = last["whole_filter_us_per_frame"] / first["whole_filter_us_per_frame"]
     return out
