@@ -87,6 +87,14 @@ class SequenceConfig(BaseModel):
     candidates: int = Field(
         4, ge=1, le=16, description="places a global check may open windows at"
     )  # fmt: skip
+    window_frames: int = Field(
+        2048, ge=8, le=1_000_000,
+        description="route frames a tracker's windows may cover together (widened on weak evidence)",
+    )
+    whole_route_budget: int = Field(
+        65_536, ge=1, le=1_000_000_000,
+        description="state updates per frame, on average, a tracker may spend on the whole route",
+    )
 
     @model_validator(mode="after")
     def _speeds(self) -> SequenceConfig:

@@ -12,8 +12,19 @@ two modes:
   places anywhere on the route and opens a window at each one outside the current windows, at
   the outside density: a kidnapped vehicle's true place then gathers evidence as the whole
   filter's would, and takes over once it is the most probable. Windows no better than the
-  outside are closed after a probation; should the outside mass exceed one half (lost), the
-  tracker goes back to the whole route.
+  outside are closed after a probation.
+
+When the windows explain the frames no better than the route does on average (a running
+evidence ratio), or the outside holds more than half the mass (lost), the tracker **widens**:
+its global checks open windows at up to ``window_frames // width`` candidate places, not
+``candidates``, until the evidence is back. It goes back to the whole route only as far as
+``whole_route_budget`` allows: a credit of that many state updates per frame, a whole-route
+frame costing ``S·N`` and going there and back ``S·N`` each. On a short route (``S·N`` within
+the budget) every such frame goes to the whole route, as the whole filter would; on a long one
+a relocalisation is rare (once every ``~3·S·N / budget`` frames at most) and lasts while its
+credit does, after which the tracker opens windows at the whole posterior's best places. A
+vehicle not yet localised (a fresh tracker) runs on the whole route until its belief
+concentrates, whatever the budget.
 
 The emission is the whole filter's: z-scored against the spread of the query's scores over the
 route (a fixed sample of frames for a code's scorer) and scaled by ``emission_scale``. Per
@@ -37,15 +48,18 @@ from service.encoding.sequence import (
     likelihood,
 )
 from service.encoding.sequence_config import SequenceConfig
+from service.encoding.tracking_windows import best_places, covered, frames_outside
 from service.errors import InvalidInputError
 
-MAX_WINDOWS = 16
+MAX_WINDOWS = 16  # windows while the evidence holds (window_frames // width once widened)
 PROBATION = 8  # frames a candidate window stays open, at least
+WIDE_PROBATION = 32  # … and while widened
 REPLAY = 8  # a new window is opened with the evidence of this many earlier frames
 LOST = 0.5  # outside mass beyond which the tracker goes back to the whole route
 CHECK_CLASSES = 2048  # class scores per frame a code's global checks may cost, amortised
 EVIDENCE_MEMORY = 0.2  # weight of the newest frame in the running evidence ratio
 EVIDENCE_LOST = 0.0  # a running log evidence ratio at or below this: the windows lost the vehicle
+BANKED = REPLAY  # whole-route frames the relocalisation credit may save up
 _FLAT = 1e-10
 
 
@@ -64,6 +78,8 @@ class DriveTracker:
         # bounded (a lost vehicle is caught by the evidence test every frame meanwhile)
         cost = int(getattr(scorer, "check_cost", 0))
         self.check_interval = max(self.config.check_every, -(-cost // CHECK_CLASSES))
+        self.whole_cost = int(self.speeds.size) * self.n_frames  # state updates a whole frame
+        self.max_windows = max(1, self.config.window_frames // self.width)
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -77,6 +93,10 @@ class DriveTracker:
         self.evidence = 0.0  # running log ratio: the windows' evidence over the route's
         self.frames = 0
         self.recent: deque[tuple[Any, float | None]] = deque(maxlen=REPLAY)
+        self.localised = False  # tracked once: from then on the whole route costs credit
+        self.credit = 0.0  # state updates the tracker may spend on the whole route
+        self.wide = False  # weak evidence: global checks open up to max_windows windows
+        self.relocalisations = 0
 
     def start_at(self, frame: int) -> None:
         """Start tracking a vehicle known to stand at ``frame`` (a position fix, or where its
@@ -103,6 +123,7 @@ class DriveTracker:
         self.age = np.array([PROBATION], dtype=np.int64)
         self.outside = eps * (self.n_frames - self.width) / self.n_frames
         self.evidence = 1.0
+        self.localised = True
 
     @property
     def mode(self) -> str:
@@ -135,20 +156,10 @@ class DriveTracker:
         return out / out.sum()
 
     def _covered(self) -> np.ndarray:
-        mask = np.zeros(self.n_frames, dtype=bool)
-        for lo in self.lo.tolist():
-            mask[lo : lo + self.width] = True
-        return mask
+        return covered(self.lo, self.width, self.n_frames)
 
     def _n_outside(self) -> int:
-        """Frames outside every window (the union of the windows' intervals, ``O(B log B)``)."""
-        covered, end = 0, -1
-        for lo in sorted(self.lo.tolist()):
-            hi = lo + self.width
-            if hi > end:
-                covered += hi - max(lo, end)
-                end = hi
-        return self.n_frames - covered
+        return frames_outside(self.lo, self.width, self.n_frames)
 
     # -- update ----------------------------------------------------------------------
     def update(self, prep: Any, odometry: float | None = None) -> SequenceEstimate:
@@ -157,6 +168,13 @@ class DriveTracker:
         self.frames += 1
         recent = list(self.recent)
         self.recent.append((prep, odometry))
+        budget = float(self.config.whole_route_budget)
+        self.credit = min(self.credit + budget, max(budget, BANKED * self.whole_cost))
+        if self.whole is not None and self.localised:
+            if self.credit < self.whole_cost and self.windowed_allowed:
+                self._leave_whole()  # out of credit: back to windows at its best places
+                return self._update_windows(prep, odometry, recent)
+            self.credit -= self.whole_cost
         if self.whole is not None:
             row = self.scorer.full(prep)
             est = self.whole.update(row, odometry)
@@ -180,6 +198,25 @@ class DriveTracker:
         self.outside = max(0.0, 1.0 - float(self.P.sum(dtype=np.float64)))
         self.evidence = 1.0
         self.whole = None
+        self.localised, self.wide = True, False
+
+    def _leave_whole(self) -> None:
+        """From the whole route to windows at the posterior's best places (up to
+        ``max_windows``, the best first), the rest of its mass the outside; widened."""
+        assert self.whole is not None
+        lo_arr = best_places(self.whole.posterior, self.width, self.max_windows)
+        state = self.whole.state  # (S, N), sums to 1
+        idx = lo_arr[:, None] + np.arange(self.width)[None, :]
+        self.P = np.ascontiguousarray(state[:, idx], dtype=np.float32)  # (S, B, W)
+        for b in range(1, lo_arr.size):  # a frame in two windows counts once
+            dup = np.isin(idx[b], idx[:b].ravel())
+            self.P[:, b, dup] = 0.0
+        self.lo = lo_arr
+        self.age = np.zeros(lo_arr.size, dtype=np.int64)
+        self.age[0] = PROBATION
+        self.outside = max(0.0, 1.0 - float(self.P.sum(dtype=np.float64)))
+        self.evidence = 1.0
+        self.whole, self.wide = None, True
 
     def _emission(self, prep: Any, idx: np.ndarray) -> tuple[np.ndarray, float]:
         """Likelihood of the window frames ``idx`` and the mean likelihood outside."""
@@ -222,6 +259,7 @@ class DriveTracker:
         self.outside += eps * n_out / N  # … and outside them
         if self.frames % self.check_interval == 0:
             pred = self._open_candidates(prep, pred, n_out, recent)
+            B = pred.shape[1]
         B = pred.shape[1]
         idx = (self.lo[:, None] + np.arange(W)[None, :]).ravel()
         lik, lik_out = self._emission(prep, idx)
@@ -243,7 +281,11 @@ class DriveTracker:
         self._recentre()
         self._close_windows()
         est = self._estimate()
-        if self.outside > LOST or (self.age.max() >= PROBATION and self.evidence <= EVIDENCE_LOST):
+        weak = self.outside > LOST or (self.age.max() >= PROBATION and self.evidence <= EVIDENCE_LOST)
+        self.wide = weak or (self.wide and self.evidence < 1.0)
+        if weak and self.credit >= 2 * self.whole_cost:
+            self.credit -= self.whole_cost  # going there costs as much as a frame on it
+            self.relocalisations += 1
             self._to_whole()
         return est
 
@@ -253,7 +295,10 @@ class DriveTracker:
         """``pred`` with a window at each candidate place that lies outside every window: the
         outside density, carried through the evidence of the last :data:`REPLAY` frames
         relative to the outside's (as the whole filter would have)."""
-        cands = np.asarray(self.scorer.candidates(prep, self.config.candidates))
+        m = self.config.candidates
+        if self.wide:
+            m = max(m, self.max_windows - self.lo.size)
+        cands = np.asarray(self.scorer.candidates(prep, m))
         S, W = pred.shape[0], pred.shape[2]
         density = self.outside / (S * n_out)
         r = self.config.track_radius
@@ -322,12 +367,13 @@ class DriveTracker:
         n_out = max(1, self._n_outside())
         level = 2.0 * self.outside * W / n_out  # a window's share were it outside
         best = int(mass.argmax())
-        keep = (mass > level) | (self.age < PROBATION)
+        keep = (mass > level) | (self.age < (WIDE_PROBATION if self.wide else PROBATION))
         keep[best] = True
-        if keep.sum() > MAX_WINDOWS:
+        most = self.max_windows if self.wide else min(MAX_WINDOWS, self.max_windows)
+        if keep.sum() > most:
             order = np.argsort(-mass)
             keep[:] = False
-            keep[order[:MAX_WINDOWS]] = True
+            keep[order[:most]] = True
         if keep.all():
             return
         self.outside += float(mass[~keep].sum())

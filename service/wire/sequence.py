@@ -79,6 +79,14 @@ class SequenceFilterOptions(Request):
     candidates: int | None = Field(
         None, ge=1, le=16, description="places a global check may open windows at"
     )
+    window_frames: int | None = Field(
+        None, ge=8, le=1_000_000,
+        description="route frames a tracker's windows may cover together (widened on weak evidence)",
+    )
+    whole_route_budget: int | None = Field(
+        None, ge=1, le=1_000_000_000,
+        description="state updates per frame, on average, a tracker may spend on the whole route",
+    )
 
     _numbers = field_validator(
         "min_speed", "max_speed", "speed_step", "speed_change", "direction_change",

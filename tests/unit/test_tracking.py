@@ -61,19 +61,22 @@ def test_the_tracker_holds_only_windows_once_localised() -> None:
     assert post.shape == (N,) and abs(post.sum() - 1) < 1e-9 and abs(int(post.argmax()) - 699) <= 2
 
 
+def _recovered_after(ok: np.ndarray) -> int:
+    """Frames until the estimate is right from there to the end."""
+    assert ok[-1]
+    return ok.size - int(np.argmin(ok[::-1]))
+
+
 def test_a_kidnapped_vehicle_is_found_again_by_the_global_checks() -> None:
     truth = np.concatenate([np.arange(200, 400), np.arange(1500, 1700)])  # moved at t = 200
     S = bumps(truth, noise=0.5, seed=3)
     tracker = DriveTracker(MatrixScorer(S))
     est = np.array([tracker.update(t).index for t in range(len(S))])
     assert within(est[20:200], truth[20:200]).all()
-    after = within(est[200:], truth[200:])
-    assert after[-1]
-    back = after.size - int(np.argmin(after[::-1]))  # with it from here to the end
+    back = _recovered_after(within(est[200:], truth[200:]))
     whole = within(filter_sequence(S, SequenceConfig(tracking=False)).index[200:], truth[200:])
-    assert whole[-1]
     # no slower than the whole filter, but for the wait until the next global check
-    assert back <= whole.size - int(np.argmin(whole[::-1])) + tracker.check_interval, back
+    assert back <= _recovered_after(whole) + tracker.check_interval, back
 
 
 def test_stops_and_speed_changes_are_followed_by_default() -> None:
@@ -199,3 +202,44 @@ def test_a_vehicle_started_at_a_known_place_is_tracked_from_its_first_frame() ->
     assert within(est, truth).mean() > 0.97
     with pytest.raises(InvalidInputError, match="not on the route"):
         tracker.start_at(N)
+
+
+def _kidnapped_on_a_long_route(budget: int) -> tuple[DriveTracker, np.ndarray, np.ndarray, np.ndarray]:
+    """A known start on a 20,000-frame route (``S·N`` = 320,000 state updates a whole-route
+    frame, past the default budget), moved at t = 200; the tracker's estimates and modes."""
+    truth = np.concatenate([np.arange(2000, 2200), np.arange(15000, 15300)])
+    S = bumps(truth, n=20_000, noise=0.5, seed=3)
+    tracker = DriveTracker(MatrixScorer(S), SequenceConfig(whole_route_budget=budget))
+    tracker.start_at(2000)
+    est, modes = [], []
+    for t in range(len(S)):
+        est.append(tracker.update(t).index)
+        modes.append(tracker.mode)
+    return tracker, np.array(est), np.array(modes), truth
+
+
+@pytest.mark.parametrize("budget", [65_536, 1])
+def test_on_a_long_route_weak_evidence_widens_within_the_whole_route_budget(budget: int) -> None:
+    tracker, est, modes, truth = _kidnapped_on_a_long_route(budget)
+    assert tracker.whole_cost == tracker.speeds.size * 20_000 > budget
+    spent = (modes == "whole").sum() + tracker.relocalisations  # a visit: one frame's cost more
+    assert spent * tracker.whole_cost <= len(est) * budget  # the credit bounds it
+    if budget == 1:
+        assert (modes == "whole").sum() == 0
+    assert within(est[:200], truth[:200]).all()
+    whole = filter_sequence(bumps(truth, n=20_000, noise=0.5, seed=3), SequenceConfig(tracking=False))
+    after = _recovered_after(within(est[200:], truth[200:]))
+    # the widened windows find the vehicle about as soon as the whole route's filter does
+    assert after <= 1.25 * _recovered_after(within(whole.index[200:], truth[200:])), after
+
+
+def test_a_short_route_goes_back_to_the_whole_route_on_weak_evidence() -> None:
+    truth = np.concatenate([np.arange(200, 400), np.arange(1500, 1700)])  # moved at t = 200
+    tracker = DriveTracker(MatrixScorer(bumps(truth, noise=0.5, seed=3)))
+    assert tracker.whole_cost <= SequenceConfig().whole_route_budget  # S·N affordable every frame
+    modes = []
+    for t in range(len(truth)):
+        tracker.update(t)
+        modes.append(tracker.mode)
+    assert tracker.relocalisations >= 1 and "whole" in modes[200:]
+    assert not tracker.wide or tracker.mode == "whole"  # widening is for long routes
