@@ -10,8 +10,10 @@ at constant and variable speed, stops, reverse drives and kidnaps (``gridplace b
 at the same precision elsewhere; the best mean precision over the protocols); only the speed
 range is a prior on the vehicle: widen it for a vehicle that is faster relative to the map
 (``max_speed=3`` on the ``traffic`` drives, which cruise at up to 3 frames per query frame). ``odometry_*`` apply to frames that come with a displacement (path integration);
-``track*`` and ``check_every`` to the windowed tracker that keeps a vehicle's per-frame cost
-independent of the route's length once it is localised.
+``track*``, ``check_every``, ``window_frames`` and ``whole_route_budget`` to the windowed
+tracker that keeps a vehicle's per-frame cost independent of the route's length once it is
+localised (the budget's default covers the whole route of a map up to 4,096 frames at the
+default 16 states, so there weak evidence goes back to it every frame, as the whole filter).
 """
 
 from __future__ import annotations

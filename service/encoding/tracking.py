@@ -79,7 +79,8 @@ class DriveTracker:
         cost = int(getattr(scorer, "check_cost", 0))
         self.check_interval = max(self.config.check_every, -(-cost // CHECK_CLASSES))
         self.whole_cost = int(self.speeds.size) * self.n_frames  # state updates a whole frame
-        self.max_windows = max(1, self.config.window_frames // self.width)
+        # windows never hold more than the whole route's state (plus a check's candidates)
+        self.max_windows = max(1, min(self.config.window_frames, self.n_frames) // self.width)
         self.reset()
 
     # -- state -----------------------------------------------------------------------

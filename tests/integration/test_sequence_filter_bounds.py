@@ -79,7 +79,9 @@ def test_varied_speed_grids_leave_no_scratch_behind(served: tuple[ServerProcess,
 @pytest.mark.parametrize(
     "params",
     [dict(relocalization=1.0), dict(relocalization="1"), dict(relocalization=1e-45, min_speed=50, max_speed=50),
-     dict(relocalization=1e-38, min_speed=50, max_speed=50, emission_scale=1000)],
+     dict(relocalization=1e-38, min_speed=50, max_speed=50, emission_scale=1000),
+     dict(whole_route_budget=1), dict(window_frames=1_000_000, whole_route_budget=1),
+     dict(window_frames=8, whole_route_budget=1_000_000_000)],
 )  # fmt: skip
 def test_degenerate_filters_answer_finite_estimates(
     served: tuple[ServerProcess, np.ndarray], params: dict[str, object]
@@ -101,3 +103,14 @@ def test_an_emission_scale_beyond_its_bound_is_a_422_naming_it(
     with httpx.Client(base_url=srv.url, timeout=60) as c:
         r = _drive(c, Q[:5], emission_scale=1e6)
     assert r.status_code in (400, 422) and "emission_scale" in r.text, r.text
+
+
+@pytest.mark.parametrize("option", ["whole_route_budget=0", "window_frames=4"])
+def test_a_tracker_budget_below_its_bound_is_a_422_naming_it(
+    served: tuple[ServerProcess, np.ndarray], option: str
+) -> None:
+    srv, Q = served
+    name, value = option.split("=")
+    with httpx.Client(base_url=srv.url, timeout=60) as c:
+        r = _drive(c, Q[:5], **{name: int(value)})
+    assert r.status_code in (400, 422) and name in r.text, r.text
