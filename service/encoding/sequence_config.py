@@ -91,7 +91,7 @@ class SequenceConfig(BaseModel):
     )  # fmt: skip
     window_frames: int = Field(
         2048, ge=8, le=1_000_000,
-        description="route frames a tracker's windows may cover together (widened on weak evidence)",
+        description="route frames a tracker's windows may cover together (on weak evidence)",
     )
     whole_route_budget: int = Field(
         65_536, ge=1, le=1_000_000_000,

@@ -282,7 +282,8 @@ class DriveTracker:
         self._recentre()
         self._close_windows()
         est = self._estimate()
-        weak = self.outside > LOST or (self.age.max() >= PROBATION and self.evidence <= EVIDENCE_LOST)
+        lost = self.age.max() >= PROBATION and self.evidence <= EVIDENCE_LOST
+        weak = self.outside > LOST or lost
         self.wide = weak or (self.wide and self.evidence < 1.0)
         if weak and self.credit >= 2 * self.whole_cost:
             self.credit -= self.whole_cost  # going there costs as much as a frame on it

@@ -81,7 +81,7 @@ class SequenceFilterOptions(Request):
     )
     window_frames: int | None = Field(
         None, ge=8, le=1_000_000,
-        description="route frames a tracker's windows may cover together (widened on weak evidence)",
+        description="route frames a tracker's windows may cover together (on weak evidence)",
     )
     whole_route_budget: int | None = Field(
         None, ge=1, le=1_000_000_000,

@@ -204,7 +204,9 @@ def test_a_vehicle_started_at_a_known_place_is_tracked_from_its_first_frame() ->
         tracker.start_at(N)
 
 
-def _kidnapped_on_a_long_route(budget: int) -> tuple[DriveTracker, np.ndarray, np.ndarray, np.ndarray]:
+def _kidnapped_on_a_long_route(
+    budget: int,
+) -> tuple[DriveTracker, np.ndarray, np.ndarray, np.ndarray]:
     """A known start on a 20,000-frame route (``S·N`` = 320,000 state updates a whole-route
     frame, past the default budget), moved at t = 200; the tracker's estimates and modes."""
     truth = np.concatenate([np.arange(2000, 2200), np.arange(15000, 15300)])
@@ -227,7 +229,8 @@ def test_on_a_long_route_weak_evidence_widens_within_the_whole_route_budget(budg
     if budget == 1:
         assert (modes == "whole").sum() == 0
     assert within(est[:200], truth[:200]).all()
-    whole = filter_sequence(bumps(truth, n=20_000, noise=0.5, seed=3), SequenceConfig(tracking=False))
+    S = bumps(truth, n=20_000, noise=0.5, seed=3)
+    whole = filter_sequence(S, SequenceConfig(tracking=False))
     after = _recovered_after(within(est[200:], truth[200:]))
     # the widened windows find the vehicle about as soon as the whole route's filter does
     assert after <= 1.25 * _recovered_after(within(whole.index[200:], truth[200:])), after

@@ -11,7 +11,9 @@ from service.encoding.tracking_windows import best_places, covered, frames_outsi
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(20, 400), st.integers(1, 15), st.lists(st.integers(0, 10_000), max_size=12))
-def test_frames_outside_counts_the_union_of_the_windows(n: int, width: int, starts: list[int]) -> None:
+def test_frames_outside_counts_the_union_of_the_windows(
+    n: int, width: int, starts: list[int]
+) -> None:
     lo = np.array([s % (n - width + 1) for s in starts], dtype=np.int64)
     mask = covered(lo, width, n)
     assert frames_outside(lo, width, n) == n - int(mask.sum())
@@ -26,7 +28,8 @@ def test_best_places_are_separate_windows_on_the_route_best_first(
     post = np.random.default_rng(seed).random(n)
     los = best_places(post, width, most)
     assert 1 <= los.size <= most and np.all((0 <= los) & (los <= n - width))
-    assert abs(int(post.argmax()) - int(los[0]) - radius) <= radius  # the best frame is in the first
+    best = int(post.argmax())
+    assert abs(best - int(los[0]) - radius) <= radius  # the best frame is in the first window
     assert np.unique(los).size == los.size  # each place once
     if n >= 2 * most * width:  # room for them all: every block's best frame is a candidate
         assert los.size == most
