@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from service.encoding.adaptation_step import MIN_SCALE_RATIO
+from service.encoding.normalization import column_moments
 from service.errors import InvalidInputError, InvalidParameterError
 
 REFERENCE = "reference"  #: the route's own statistics (the traversal(s) it was trained on)
@@ -78,16 +79,8 @@ class ConditionStats:
     @classmethod
     def of(cls, X: np.ndarray) -> ConditionStats:
         """The statistics of ``X`` (``(n, d)``, n ≥ 1), in row blocks."""
-        n, d = X.shape
-        total = np.zeros(d)
-        for s in range(0, n, _BLOCK_ROWS):
-            total += np.asarray(X[s : s + _BLOCK_ROWS], np.float64).sum(axis=0)
-        mean = total / n
-        sq = np.zeros(d)
-        for s in range(0, n, _BLOCK_ROWS):
-            diff = np.asarray(X[s : s + _BLOCK_ROWS], np.float64) - mean
-            sq += np.einsum("ij,ij->j", diff, diff)
-        return cls(mean, sq / n, int(n))
+        mean, var = column_moments(X, _BLOCK_ROWS)
+        return cls(mean, var, int(X.shape[0]))
 
     def merged(self, other: ConditionStats) -> ConditionStats:
         """The statistics of both sets of rows together (Chan et al.'s pairwise update)."""

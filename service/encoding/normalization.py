@@ -16,6 +16,21 @@ _MIN_STD = 1e-8  # constant columns (black frames, borders) are centred, not div
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+def column_moments(X: np.ndarray, block_rows: int = 8192) -> tuple[np.ndarray, np.ndarray]:
+    """Column mean and population variance of ``X`` (``(n, d)``, n ≥ 1) in float64, two
+    passes over row blocks (no full-size float64 temporary)."""
+    n, d = X.shape
+    total = np.zeros(d)
+    for s in range(0, n, block_rows):
+        total += X[s : s + block_rows].sum(axis=0, dtype=np.float64)
+    mean = total / n
+    sq = np.zeros(d)
+    for s in range(0, n, block_rows):
+        diff = np.asarray(X[s : s + block_rows], dtype=np.float64) - mean
+        sq += np.einsum("ij,ij->j", diff, diff)
+    return mean, sq / n
+
+
 @dataclass(frozen=True)
 class Normalizer:
     mean: np.ndarray  # float32, shape (d,)
@@ -24,16 +39,8 @@ class Normalizer:
     @classmethod
     def fit(cls, X: np.ndarray, block_rows: int = 8192) -> Normalizer:
         """Column mean and standard deviation, in row blocks (no full-size temporary)."""
-        n, d = X.shape
-        total = np.zeros(d)
-        for s in range(0, n, block_rows):
-            total += X[s : s + block_rows].sum(axis=0, dtype=np.float64)
-        mean = total / n
-        sq = np.zeros(d)
-        for s in range(0, n, block_rows):
-            diff = np.asarray(X[s : s + block_rows], dtype=np.float64) - mean
-            sq += np.einsum("ij,ij->j", diff, diff)
-        std = np.sqrt(sq / n)
+        mean, var = column_moments(X, block_rows)
+        std = np.sqrt(var)
         std = np.where(std < _MIN_STD, 1.0, std)
         return cls(mean=mean.astype(np.float32), scale=std.astype(np.float32))
 
