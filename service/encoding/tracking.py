@@ -192,20 +192,19 @@ class DriveTracker:
         inside = float(post[lo : lo + self.width].sum())
         if inside < self.config.tracking_mass:
             return
-        state = self.whole.state  # (S, N), sums to 1
-        self.P = np.ascontiguousarray(state[:, None, lo : lo + self.width], dtype=np.float32)
-        self.lo = np.array([lo], dtype=np.int64)
-        self.age = np.array([PROBATION], dtype=np.int64)
-        self.outside = max(0.0, 1.0 - float(self.P.sum(dtype=np.float64)))
-        self.evidence = 1.0
-        self.whole = None
-        self.localised, self.wide = True, False
+        self._enter_windows(np.array([lo], dtype=np.int64), wide=False)
 
     def _leave_whole(self) -> None:
         """From the whole route to windows at the posterior's best places (up to
         ``max_windows``, the best first), the rest of its mass the outside; widened."""
         assert self.whole is not None
-        lo_arr = best_places(self.whole.posterior, self.width, self.max_windows)
+        self._enter_windows(best_places(self.whole.posterior, self.width, self.max_windows),
+                            wide=True)  # fmt: skip
+
+    def _enter_windows(self, lo_arr: np.ndarray, wide: bool) -> None:
+        """From the whole route to windows starting at ``lo_arr`` (the first one past its
+        probation), holding the whole state's mass there; the rest is the outside's."""
+        assert self.whole is not None
         state = self.whole.state  # (S, N), sums to 1
         idx = lo_arr[:, None] + np.arange(self.width)[None, :]
         self.P = np.ascontiguousarray(state[:, idx], dtype=np.float32)  # (S, B, W)
@@ -217,7 +216,8 @@ class DriveTracker:
         self.age[0] = PROBATION
         self.outside = max(0.0, 1.0 - float(self.P.sum(dtype=np.float64)))
         self.evidence = 1.0
-        self.whole, self.wide = None, True
+        self.whole = None
+        self.localised, self.wide = True, wide
 
     def _emission(self, prep: Any, idx: np.ndarray) -> tuple[np.ndarray, float]:
         """Likelihood of the window frames ``idx`` and the mean likelihood outside."""
@@ -260,7 +260,6 @@ class DriveTracker:
         self.outside += eps * n_out / N  # … and outside them
         if self.frames % self.check_interval == 0:
             pred = self._open_candidates(prep, pred, n_out, recent)
-            B = pred.shape[1]
         B = pred.shape[1]
         idx = (self.lo[:, None] + np.arange(W)[None, :]).ravel()
         lik, lik_out = self._emission(prep, idx)
