@@ -68,21 +68,32 @@ def batch_entries_per_query(nprobe: int, n_features: int) -> int:
     return 16 * int(nprobe) + int(n_features)
 
 
+def _buffers(W: np.ndarray, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two cache-sized buffers a scan gathers ``rows`` stored rows into and widens them
+    in (one buffer for float32 weights)."""
+    gathered = np.empty((rows, W.shape[1]), dtype=W.dtype)
+    wide = gathered if W.dtype == np.float32 else np.empty(gathered.shape, dtype=np.float32)
+    return gathered, wide
+
+
+def _products(W: np.ndarray, ids: np.ndarray, z: np.ndarray, gathered: np.ndarray,
+              wide: np.ndarray, out: np.ndarray) -> None:  # fmt: skip
+    """``out[i] = q_{ids[i]} · z`` in float32 (``z``: ``(m,)`` or ``(m, queries)``), block by
+    block of ``len(gathered)`` rows through the buffers of :func:`_buffers`."""
+    rows = gathered.shape[0]
+    for i in range(0, ids.size, rows):
+        j = min(ids.size, i + rows)
+        g = gathered[: j - i]
+        np.take(W, ids[i:j], axis=0, out=g, mode="clip")  # valid ids: unbuffered
+        if wide is not gathered:
+            np.copyto(wide[: j - i], g, casting="unsafe")  # int8 → float32 is exact
+        np.matmul(wide[: j - i], z, out=out[i:j])
+
+
 def _one_query_products(dg: Scorer, z: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Float32 ``z·q_i`` of the rows ``ids``, block by block through two cache-sized buffers."""
-    W = dg.weight
-    k, m = ids.size, W.shape[1]
-    out = np.empty(k, dtype=np.float32)
-    rows = min(k, BLOCK_ROWS)
-    gathered = np.empty((rows, m), dtype=W.dtype)
-    wide = gathered if W.dtype == np.float32 else np.empty((rows, m), dtype=np.float32)
-    for s in range(0, k, BLOCK_ROWS):
-        e = min(k, s + BLOCK_ROWS)
-        g = gathered[: e - s]
-        np.take(W, ids[s:e], axis=0, out=g, mode="clip")  # valid ids: unbuffered
-        if wide is not gathered:
-            np.copyto(wide[: e - s], g, casting="unsafe")  # int8 → float32 is exact
-        np.matmul(wide[: e - s], z, out=out[s:e])
+    out = np.empty(ids.size, dtype=np.float32)
+    _products(dg.weight, ids, z, *_buffers(dg.weight, min(ids.size, BLOCK_ROWS)), out)
     return out
 
 
@@ -114,9 +125,7 @@ def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
     cuts = np.flatnonzero(np.diff(sorted_lists)) + 1
     o, members, W = ivf.offsets, ivf.members, dg.weight
     longest = max(1, int(np.diff(o).max()))
-    rows = min(BLOCK_ROWS, longest)
-    gathered = np.empty((rows, W.shape[1]), dtype=W.dtype)
-    wide = gathered if W.dtype == np.float32 else np.empty(gathered.shape, dtype=np.float32)
+    gathered, wide = _buffers(W, min(BLOCK_ROWS, longest))
     ones = np.ones(longest)  # column sums as one product: NumPy's axis-0 sum is 4× slower
     for s, e in zip([0, *cuts.tolist()], [*cuts.tolist(), order.size], strict=True):
         c = int(sorted_lists[s])
@@ -129,13 +138,7 @@ def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
             qe = min(e, qs + step)
             zt = np.ascontiguousarray(Zc.take(queries[qs:qe], axis=0).T)  # (m, queries)
             prod = np.empty((b - a, qe - qs), dtype=np.float32)
-            for i in range(0, b - a, rows):
-                j = min(b - a, i + rows)
-                g = gathered[: j - i]
-                np.take(W, ids[i:j], axis=0, out=g, mode="clip")  # valid ids: unbuffered
-                if wide is not gathered:
-                    np.copyto(wide[: j - i], g, casting="unsafe")  # int8 → float32 is exact
-                np.matmul(wide[: j - i], zt, out=prod[i:j])
+            _products(W, ids, zt, gathered, wide, prod)
             S = _finish(dg, prod, ids)
             top = S.argmax(axis=0)  # the first best: the lowest frame (ascending in a list)
             bm = S[top, np.arange(qe - qs)]
