@@ -37,6 +37,17 @@ def recorded(loaded: LoadedModel) -> ConditionSet | None:
     return condition_set(loaded.model)
 
 
+def _conditions_of(loaded: LoadedModel) -> ConditionSet:
+    """The version's conditions for a query that names one (400 when it records none)."""
+    conditions = recorded(loaded)
+    if conditions is None:
+        raise InvalidInputError(
+            f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
+            "and records no condition statistics; query without a condition", field="condition",
+        )  # fmt: skip
+    return conditions
+
+
 def _check_name(name: str) -> None:
     if not name or len(name) > MAX_CONDITION_NAME:
         raise InvalidInputError(f"condition names a recorded condition in 1 to "
@@ -49,12 +60,7 @@ def standardise(loaded: LoadedModel, Q: np.ndarray, condition: str | None) -> tu
     if condition is None:
         return Q, None
     _check_name(condition)
-    conditions = recorded(loaded)
-    if conditions is None:
-        raise InvalidInputError(
-            f"map {loaded.map!r} version {loaded.version} was trained without normalisation "
-            "and records no condition statistics; query without a condition", field="condition",
-        )  # fmt: skip
+    conditions = _conditions_of(loaded)
     i = infer(conditions, Q) if condition == AUTO else conditions.index(condition)
     front = conditions.mean[0], np.sqrt(conditions.var[0])
     return conditions.standardise(i, Q, *front), conditions.names[i]
@@ -66,15 +72,11 @@ def start_drive(adapter: AppearanceAdapter, loaded: LoadedModel, condition: str 
     version that records conditions: inferred from the first ``frames`` frames)."""
     if condition is not None:
         _check_name(condition)
-    conditions = recorded(loaded)
+    named = condition not in (None, AUTO)
+    conditions = _conditions_of(loaded) if named else recorded(loaded)
     if conditions is None or (condition is None and len(conditions) == 1):
-        if condition not in (None, AUTO) and conditions is None:
-            raise InvalidInputError(f"map {loaded.map!r} version {loaded.version} records no "
-                                    "condition statistics", field="condition")  # fmt: skip
-        if condition not in (None, AUTO) and conditions is not None:
-            conditions.index(condition)  # only the reference is known: anything else is refused
-        return adapter
-    which = None if condition in (None, AUTO) else conditions.index(condition)
+        return adapter  # nothing to start from but the route's own statistics
+    which = conditions.index(condition) if named else None
     return adapter.start_from(conditions, which, frames)
 
 
@@ -91,10 +93,7 @@ def continue_drive(adapter: AppearanceAdapter, loaded: LoadedModel, condition: s
     if condition is None or condition == AUTO:
         return
     _check_name(condition)
-    conditions = recorded(loaded)
-    if conditions is None:
-        raise InvalidInputError(f"map {loaded.map!r} version {loaded.version} records no "
-                                "condition statistics", field="condition")  # fmt: skip
+    conditions = _conditions_of(loaded)
     i = conditions.index(condition)
     if adapter.conditions is not conditions:
         adapter.conditions = conditions
