@@ -15,13 +15,14 @@ from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
 from service.encoding.front_end import FrontEnd
 from service.encoding.inverted_file import InvertedFile, Search, check_search, uses_ivf
-from service.encoding.patterns import n_selected, select_columns
+from service.encoding.patterns import n_selected
 from service.encoding.phases import auto_periods, index_to_labels, validate_periods
 from service.encoding.progress import ProgressFn, Steps
-from service.encoding.prototype import DEFAULT_TEMPERATURE, stream_frame_prototypes
+from service.encoding.prototype import DEFAULT_TEMPERATURE
 from service.encoding.quantization import check_dtype
 from service.encoding.residue import CODES, residue_periods, validate_residue_periods
 from service.encoding.serving_plan import plan_for
+from service.encoding.streamed_fit import fit_class_prototypes, fit_frame_prototypes
 from service.encoding.projection_width import choose_width
 from service.encoding.trainers import TRAINERS
 from service.encoding.traversals import as_traversals, per_place_C
@@ -179,7 +180,9 @@ class PhaseEncoder(PlaceRecognizer):
         width = self._front_width(tr.n_places, X.shape[0], X.shape[1])
         front = FrontEnd.fit(X, bool(self.normalize), width, float(self.whiten_power), self.dtype)
         if self._one_prototype_per_row(tr.places, tr.n_traversals, X.shape[0]):
-            self._fit_streamed(X, front, progress)
+            fit_frame_prototypes(self, X, front, progress)
+        elif self._class_prototypes(tr.places, tr.n_traversals, X.shape[0]):
+            fit_class_prototypes(self, X, front, progress)
         else:
             self._fit_normalised(front.transform(X), progress, tr.places, tr.n_traversals)
         self.normalizer_ = front if front.normalizer or front.projection else None
@@ -195,19 +198,12 @@ class PhaseEncoder(PlaceRecognizer):
         return (places is None and n_traversals == 1 and self.trainer == "prototype"
                 and len(self.periods_for(n_rows)) == 1 and float(self.rho) == 1.0)  # fmt: skip
 
-    def _fit_streamed(self, X: np.ndarray, front: FrontEnd, progress: ProgressFn | None) -> None:
-        """:meth:`_fit_normalised` of one prototype per row, the route streamed in blocks
-        through the front-end (:func:`service.encoding.prototype.stream_frame_prototypes`)."""
-        n = X.shape[0]
-        self.periods_ = self.periods_for(n)
-        steps = Steps(progress, ["digit 1/1"], self.periods_)
-        linear, scores = stream_frame_prototypes(X, front.transform, self.dtype, steps.step(0))
-        steps.done(0)
-        pattern = select_columns(scores, float(self.rho), self.gamma)
-        self.digits_ = [DigitClassifier(pattern.columns, linear, pattern, self._temperature())]
-        self.tallies_ = [appending.streamed_tally(X, front)]
-        self.whitening_ = None
-        self._set_fitted(n, int(linear.weight.shape[1]), 1)
+    def _class_prototypes(self, places: np.ndarray | None, n_traversals: int,
+                          n_rows: int) -> bool:  # fmt: skip
+        """One traversal, ``prototype`` classes of a residue code, every class with rows:
+        the class sums are accumulated in row blocks of the route."""
+        return (places is None and n_traversals == 1 and self.trainer == "prototype"
+                and self.code == "residue" and max(self.periods_for(n_rows)) <= n_rows)  # fmt: skip
 
     def _fit_inverted_file(self) -> InvertedFile | None:
         """The inverted file of a one-class-per-frame model whose ``search`` asks for one."""
