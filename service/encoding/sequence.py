@@ -14,6 +14,9 @@ The filter is the forward pass of a hidden Markov model whose state is ``(speed,
   positive affine change of the scores). ``emission="raw"`` uses ``emission_scale · L``, for
   calibrated log-likelihoods. A frame the model did not score (``−inf``, e.g. outside a
   chunked model's top chunks) gets the lowest score the model gave, so one query cannot veto.
+- **repeated views** (:mod:`service.encoding.repeats`): a frame whose scores over the route
+  are nearly the previous frame's (a stopped vehicle's camera) adds little to a stopped state's
+  belief about its place, and is evidence of a low speed.
 
 One update costs ``O(S·N)`` for ``S`` states (:attr:`SequenceConfig.n_states`; a few array
 passes, nothing depends on how many frames came before). A vehicle holds its ``(S, N)``
@@ -37,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from service.encoding.motion import MotionModel
+from service.encoding.repeats import NEW, Repeat, RepeatDetector, successors
 from service.encoding.sequence_config import MAX_SPEEDS, SequenceConfig
 from service.errors import InvalidInputError, InvalidParameterError
 
@@ -107,6 +111,7 @@ class SequenceFilter:
         self.motion = MotionModel(self.config)
         self.speeds = self.motion.speeds
         self._post = np.empty((self.speeds.size, self.n_frames), dtype=np.float32)
+        self._repeats = RepeatDetector(self.speeds, self.config)
         self.reset()
 
     def reset(self) -> None:
@@ -114,6 +119,7 @@ class SequenceFilter:
         self._post.fill(1.0 / self._post.size)
         self._mass = 1.0  # the stored posterior sums to this (normalised lazily)
         self._frames = 0
+        self._repeats.reset()
 
     @property
     def nbytes(self) -> int:
@@ -145,14 +151,24 @@ class SequenceFilter:
         self._frames = int(frames_used)
 
     def update(
-        self, frame_log_scores: np.ndarray, odometry: float | None = None
-    ) -> SequenceEstimate:
+        self, frame_log_scores: np.ndarray, odometry: float | None = None,
+        repeat: Repeat | None = None,
+    ) -> SequenceEstimate:  # fmt: skip
         """Fold in one query's frame log-scores ``(N,)`` (and the displacement since the last
-        frame, reference frames, when the vehicle measured it) and return the estimate."""
+        frame, reference frames, when the vehicle measured it) and return the estimate;
+        ``repeat``: the frame's repetition of the previous one when the caller measured it
+        (:mod:`service.encoding.repeats`), else the filter measures it."""
         L = check_scores(frame_log_scores, self.n_frames)
-        return self.update_likelihood(likelihood(L, self.config), odometry)
+        if repeat is None:
+            from service.encoding.drive_scoring import route_sample
 
-    def update_likelihood(self, lik: np.ndarray, odometry: float | None = None) -> SequenceEstimate:
+            sample = route_sample(self.n_frames)
+            repeat = self._repeats.observe(L[sample], L[successors(sample, self.n_frames)])
+        return self.update_likelihood(likelihood(L, self.config), odometry, repeat)
+
+    def update_likelihood(
+        self, lik: np.ndarray, odometry: float | None = None, repeat: Repeat = NEW
+    ) -> SequenceEstimate:
         """:meth:`update` with the frame's likelihood ``(N,)`` float32 already computed."""
         if self._frames:
             eps = self.config.relocalization
@@ -160,7 +176,7 @@ class SequenceFilter:
             scratch = np.empty_like(self._post)
             self.motion.predict(self._post, pred, scratch, (1.0 - eps) / self._mass, odometry)
             pred += np.float32(eps / pred.size)  # the uniform jump
-            np.multiply(pred, lik[None, :], out=self._post)
+            apply_evidence(pred, lik, repeat, self.motion.stops, out=self._post)
         else:
             self._post *= lik[None, :]
         self._frames += 1
@@ -193,6 +209,35 @@ def estimate_at(
     total = col.sum()
     speed = float(speeds @ col / total) if total > 0 else 0.0  # mean speed at the estimate
     return SequenceEstimate(best + offset, conf, float(np.log(max(conf, 1e-300))), frames, speed)
+
+
+def apply_evidence(
+    pred: np.ndarray, lik: np.ndarray, repeat: Repeat, stops: list[int], out: np.ndarray
+) -> None:
+    """``out = pred ·`` one frame's evidence: the likelihood ``lik`` (broadcast over the
+    frame axis, the last) for moving states, ``lik ** repeat.weight`` for the stopped rows
+    ``stops``, times each state's speed weight (:mod:`service.encoding.repeats`); ``out`` may
+    be ``pred``."""
+    stopped = []
+    if stops and repeat.weight < 1.0:
+        tempered = np.power(lik, np.float32(repeat.weight))
+        stopped = [(row, pred[row] * tempered) for row in stops]
+    np.multiply(pred, lik, out=out)
+    for row, values in stopped:
+        out[row] = values
+    if repeat.speed is not None:
+        out *= repeat.speed.reshape((-1,) + (1,) * (out.ndim - 1))
+
+
+def mean_evidence(lik: float, repeat: Repeat, n_states: int, stops: list[int]) -> float:
+    """The mean over ``n_states`` states of what :func:`apply_evidence` gives a frame of
+    likelihood ``lik``: the evidence of a mass spread evenly over the states."""
+    per_state = np.full(n_states, lik)
+    if stops:
+        per_state[stops] = lik**repeat.weight
+    if repeat.speed is not None:
+        per_state *= repeat.speed
+    return float(per_state.mean())
 
 
 def likelihood(L: np.ndarray, config: SequenceConfig) -> np.ndarray:

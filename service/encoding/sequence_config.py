@@ -9,7 +9,9 @@ at constant and variable speed, stops, reverse drives and kidnaps (``gridplace b
 1e-4 / 1e-3 over ``robust``, ``drive`` and exact NN, 1e-3 recovering kidnapped vehicles sooner
 at the same precision elsewhere; the best mean precision over the protocols); only the speed
 range is a prior on the vehicle: widen it for a vehicle that is faster relative to the map
-(``max_speed=3`` on the ``traffic`` drives, which cruise at up to 3 frames per query frame). ``odometry_*`` apply to frames that come with a displacement (path integration);
+(``max_speed=3`` on the ``traffic`` drives, which cruise at up to 3 frames per query frame).
+``repeat_*`` and ``move_novelty`` read a frame that repeats the previous view as a stop's
+(:mod:`service.encoding.repeats`); off by default (``repeat_novelty=0``), as measured there. ``odometry_*`` apply to frames that come with a displacement (path integration);
 ``track*``, ``check_every``, ``window_frames`` and ``whole_route_budget`` to the windowed
 tracker that keeps a vehicle's per-frame cost independent of the route's length once it is
 localised (the budget's default covers the whole route of a map up to 4,096 frames at the
@@ -61,6 +63,24 @@ class SequenceConfig(BaseModel):
     )
     emission_scale: float = Field(
         0.1, gt=0.0, le=1e3, description="weight of one query's evidence"
+    )
+    repeat_novelty: float = Field(
+        0.0, ge=0.0, le=100.0,
+        description="novelty of a frame's scores over the previous frame's, in one-frame moves, "
+        "below which it repeats the previous view, softly (0: off, every frame is new evidence)",
+    )
+    move_novelty: float = Field(
+        0.0, ge=0.0, le=100.0,
+        description="novelty from which a frame is a new view, evidence of moving (half of it "
+        "and below: no evidence either way, unless a repeat; 0: every frame that is no repeat)",
+    )
+    repeat_stopped: float = Field(
+        0.95, gt=0.0, lt=1.0,
+        description="probability that a stopped vehicle's frame repeats the previous view",
+    )
+    repeat_moving: float = Field(
+        0.05, gt=0.0, lt=1.0,
+        description="probability that a vehicle moving a frame or more per frame repeats its view",
     )
     confidence_radius: int = Field(
         5, ge=0, le=10_000, description="confidence = posterior mass within this many frames"

@@ -39,13 +39,17 @@ from typing import Any
 
 import numpy as np
 
+from service.encoding.drive_scoring import route_sample
 from service.encoding.motion import MotionModel
+from service.encoding.repeats import Repeat, RepeatDetector, successors
 from service.encoding.sequence import (
     _MIN_LOG_LIKELIHOOD,
     SequenceEstimate,
     SequenceFilter,
+    apply_evidence,
     estimate_at,
     likelihood,
+    mean_evidence,
 )
 from service.encoding.sequence_config import SequenceConfig
 from service.encoding.tracking_windows import best_places, covered, frames_outside
@@ -81,6 +85,8 @@ class DriveTracker:
         self.whole_cost = int(self.speeds.size) * self.n_frames  # state updates a whole frame
         # windows never hold more than the whole route's state (plus a check's candidates)
         self.max_windows = max(1, min(self.config.window_frames, self.n_frames) // self.width)
+        self.repeats = RepeatDetector(self.speeds, self.config)
+        self.next_frames = successors(route_sample(self.n_frames), self.n_frames)
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -93,7 +99,8 @@ class DriveTracker:
         self.outside = 0.0  # posterior mass outside the windows
         self.evidence = 0.0  # running log ratio: the windows' evidence over the route's
         self.frames = 0
-        self.recent: deque[tuple[Any, float | None]] = deque(maxlen=REPLAY)
+        self.recent: deque[tuple[Any, float | None, Repeat]] = deque(maxlen=REPLAY)
+        self.repeats.reset()
         self.localised = False  # tracked once: from then on the whole route costs credit
         self.credit = 0.0  # state updates the tracker may spend on the whole route
         self.wide = False  # weak evidence: global checks open up to max_windows windows
@@ -168,21 +175,23 @@ class DriveTracker:
         last frame when measured; return the estimate."""
         self.frames += 1
         recent = list(self.recent)
-        self.recent.append((prep, odometry))
+        repeat = self.repeats.observe(np.asarray(self.scorer.sample_scores(prep)),
+                                      np.asarray(self.scorer.frames(prep, self.next_frames)))
+        self.recent.append((prep, odometry, repeat))
         budget = float(self.config.whole_route_budget)
         self.credit = min(self.credit + budget, max(budget, BANKED * self.whole_cost))
         if self.whole is not None and self.localised:
             if self.credit < self.whole_cost and self.windowed_allowed:
                 self._leave_whole()  # out of credit: back to windows at its best places
-                return self._update_windows(prep, odometry, recent)
+                return self._update_windows(prep, odometry, repeat, recent)
             self.credit -= self.whole_cost
         if self.whole is not None:
             row = self.scorer.full(prep)
-            est = self.whole.update(row, odometry)
+            est = self.whole.update(row, odometry, repeat)
             if self.windowed_allowed and self.frames >= 2:
                 self._maybe_track(est)
             return est
-        return self._update_windows(prep, odometry, recent)
+        return self._update_windows(prep, odometry, repeat, recent)
 
     def _maybe_track(self, est: SequenceEstimate) -> None:
         assert self.whole is not None
@@ -240,8 +249,9 @@ class DriveTracker:
         return np.exp(e).astype(np.float32), float(np.exp(e_out).mean())
 
     def _update_windows(
-        self, prep: Any, odometry: float | None, recent: list[tuple[Any, float | None]]
-    ) -> SequenceEstimate:
+        self, prep: Any, odometry: float | None, repeat: Repeat,
+        recent: list[tuple[Any, float | None, Repeat]],
+    ) -> SequenceEstimate:  # fmt: skip
         cfg = self.config
         assert self.P is not None
         S, B, W = self.P.shape
@@ -263,17 +273,18 @@ class DriveTracker:
         B = pred.shape[1]
         idx = (self.lo[:, None] + np.arange(W)[None, :]).ravel()
         lik, lik_out = self._emission(prep, idx)
+        out_factor = mean_evidence(lik_out, repeat, self.speeds.size, self.motion.stops)
         inside = float(pred.sum(dtype=np.float64))
-        pred *= lik.reshape(1, B, W)
+        apply_evidence(pred, lik.reshape(B, W), repeat, self.motion.stops, out=pred)
         # how much better the windows explain this frame than the route does on average
-        ratio = float(pred.sum(dtype=np.float64)) / max(inside * lik_out, 1e-300)
+        ratio = float(pred.sum(dtype=np.float64)) / max(inside * out_factor, 1e-300)
         self.evidence += EVIDENCE_MEMORY * (np.log(max(ratio, 1e-300)) - self.evidence)
-        self.outside *= lik_out
+        self.outside *= out_factor
         total = float(pred.sum(dtype=np.float64)) + self.outside
         if not (total > 1e-300 and np.isfinite(total)):  # underflow: start over on this frame
             self._to_whole(uniform=True)
             assert self.whole is not None
-            return self.whole.update(self.scorer.full(prep))
+            return self.whole.update(self.scorer.full(prep), None, repeat)
         pred *= np.float32(1.0 / total)
         self.outside /= total
         self.P = pred
@@ -291,8 +302,9 @@ class DriveTracker:
         return est
 
     def _open_candidates(
-        self, prep: Any, pred: np.ndarray, n_out: int, recent: list[tuple[Any, float | None]]
-    ) -> np.ndarray:
+        self, prep: Any, pred: np.ndarray, n_out: int,
+        recent: list[tuple[Any, float | None, Repeat]],
+    ) -> np.ndarray:  # fmt: skip
         """``pred`` with a window at each candidate place that lies outside every window: the
         outside density, carried through the evidence of the last :data:`REPLAY` frames
         relative to the outside's (as the whole filter would have)."""
@@ -314,12 +326,14 @@ class DriveTracker:
         self.outside = max(0.0, self.outside - density * S * W * len(new_lo))
         lo_arr = np.array(new_lo, dtype=np.int64)
         idx = (lo_arr[:, None] + np.arange(W)[None, :]).ravel()
-        for old, odo in recent:
+        for old, odo, rep in recent:
             moved = np.empty_like(add)
             self.motion.predict(add, moved, np.empty_like(add), 1.0, odo)
             moved += np.float32(density * self.config.relocalization)
             lik, lik_out = self._emission(old, idx)
-            moved *= (lik / np.float32(max(lik_out, 1e-30))).reshape(1, len(new_lo), W)
+            apply_evidence(moved, lik.reshape(len(new_lo), W), rep, self.motion.stops, out=moved)
+            mean = mean_evidence(lik_out, rep, self.speeds.size, self.motion.stops)
+            moved *= np.float32(1.0 / max(mean, 1e-30))
             add = moved
         np.minimum(add, np.float32(1.0), out=add)
         self.lo = np.concatenate([self.lo, np.array(new_lo, dtype=np.int64)])

@@ -52,6 +52,24 @@ class SequenceFilterOptions(Request):
     emission_scale: float | None = Field(
         None, gt=0.0, le=1e3, description="weight of one query's evidence"
     )
+    repeat_novelty: float | None = Field(
+        None, ge=0.0, le=100.0,
+        description="novelty of a frame's scores over the previous frame's, in one-frame moves, "
+        "below which it repeats the previous view, softly (0: off, every frame is new evidence)",
+    )
+    move_novelty: float | None = Field(
+        None, ge=0.0, le=100.0,
+        description="novelty from which a frame is a new view, evidence of moving (half of it "
+        "and below: no evidence either way, unless a repeat; 0: every frame that is no repeat)",
+    )
+    repeat_stopped: float | None = Field(
+        None, gt=0.0, lt=1.0,
+        description="probability that a stopped vehicle's frame repeats the previous view",
+    )
+    repeat_moving: float | None = Field(
+        None, gt=0.0, lt=1.0,
+        description="probability that a vehicle moving a frame or more per frame repeats its view",
+    )
     confidence_radius: int | None = Field(
         None, ge=0, le=10_000, description="confidence = posterior mass within this many frames"
     )
@@ -91,6 +109,7 @@ class SequenceFilterOptions(Request):
     _numbers = field_validator(
         "min_speed", "max_speed", "speed_step", "speed_change", "direction_change",
         "stop_probability", "start_probability", "relocalization", "emission_scale",
+        "repeat_novelty", "move_novelty", "repeat_stopped", "repeat_moving",
         "confidence_radius", mode="before",
     )(not_a_boolean)  # fmt: skip
 
