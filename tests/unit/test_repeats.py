@@ -211,3 +211,21 @@ def apply_evidence_new(pred: np.ndarray, lik: np.ndarray, stops: list[int]) -> n
     out = np.empty_like(pred)
     apply_evidence(pred, lik, NEW, stops, out=out)
     return out
+
+
+def test_a_code_models_drive_with_a_stop_reads_its_repeats_through_the_code_scorer() -> None:
+    from service.encoding.encoder import PhaseEncoder
+    from service.encoding.sequence import sequence_localize
+    from service.encoding.synthetic import smooth_route
+
+    route = smooth_route(600, 32, seed=3)
+    model = PhaseEncoder(trainer="prototype", code="residue", n_patterns=2, code_ratio=0.2).fit(
+        route.reference
+    )
+    rows = np.r_[np.arange(100, 250), [250] * 20, np.arange(251, 400)]  # a stop at frame 250
+    Q = route.query[rows]
+    tracked = sequence_localize(model, Q, CONFIG)
+    whole = sequence_localize(model, Q, CONFIG.model_copy(update={"tracking": False}))
+    assert (np.abs(tracked.index - whole.index) <= 2).mean() > 0.95
+    assert (np.abs(tracked.index[150:170] - 250) <= 5).all()  # held through the stop
+    assert tracked.speed[165] < 0.5 < tracked.speed[-1]  # stopped, then moving again
