@@ -159,7 +159,9 @@ class SequenceFilter:
         ``repeat``: the frame's repetition of the previous one when the caller measured it
         (:mod:`service.encoding.repeats`), else the filter measures it."""
         L = check_scores(frame_log_scores, self.n_frames)
-        if repeat is None:
+        if repeat is None and self.config.repeat_novelty <= 0:
+            repeat = NEW
+        elif repeat is None:
             from service.encoding.drive_scoring import route_sample
 
             sample = route_sample(self.n_frames)
