@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
+
+if TYPE_CHECKING:
+    from service.bench.drive_fixed_precision import FixedPrecisionOptions
 
 console = Console()
 
@@ -24,6 +27,42 @@ def _sizes(text: str) -> tuple[int, ...]:
     return sizes
 
 
+def _scales(text: str) -> tuple[float, ...]:
+    try:
+        scales = tuple(float(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise typer.BadParameter(f"emission scales are comma-separated numbers, got {text!r}") from None
+    if not scales or min(scales) <= 0:
+        raise typer.BadParameter("every emission scale must be positive")
+    return scales
+
+
+def _fixed(opts: FixedPrecisionOptions, work_dir: Path | None, out: Path) -> None:
+    from service.bench.drive_fixed_precision import run_fixed_precision
+
+    result = run_fixed_precision(opts, work_dir, log=console.print)
+    table = Table(title=f"{opts.preset} preset on {result['data']}: smallest code reaching "
+                  f"{100 * opts.target:.0f} % within ±5 (chosen on validation seed "
+                  f"{opts.validation_seed}, measured on test seed {opts.seed})")  # fmt: skip
+    for col in ("N", "Στ/N", "periods", "emission scale", "code B", "validation", "test drive ±5"):
+        table.add_column(col, justify="right")
+    for r in result["sizes"]:
+        chosen = r["validation"]["chosen"]
+        if not r["reached"]:
+            table.add_row(f"{r['n_frames']:,}", "not reached", "", "", "",
+                          f"{100 * chosen['precision']:.1f} %", "")  # fmt: skip
+            continue
+        table.add_row(f"{r['n_frames']:,}", f"{r['fraction']:.4f}", "+".join(map(str, r["periods"])),
+                      f"{r['emission_scale']:g}", f"{r['code_bytes']:,}",
+                      f"{100 * chosen['precision']:.1f} %", f"{100 * r['test_precision']:.1f} %")  # fmt: skip
+    console.print(table)
+    if "code_bytes_fit" in result:
+        fit = result["code_bytes_fit"]
+        console.print(f"minimal code bytes: {fit['prefactor']:.3g}·N^{fit['exponent']:.3f}")
+    out.write_text(json.dumps(result, indent=2))
+    console.print(f"wrote {out}")
+
+
 def bench_drive_scaling(
     sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
     n_features: Annotated[int, typer.Option(help="descriptor size d of the SYNTHETIC route", min=8)] = 128,
@@ -33,10 +72,34 @@ def bench_drive_scaling(
     preset: Annotated[str, typer.Option(help="encoder preset")] = "drive",
     work_dir: Annotated[Path | None, typer.Option(help="where the SYNTHETIC routes are written")] = None,
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-drive-scaling.json"),
+    fixed_precision: Annotated[float | None, typer.Option(
+        help="instead: per N, the smallest code (Στ/N on a grid of steps of √2, searched on "
+        "validation drives) whose drives from an unknown start reach this share of frames "
+        "within ±5, measured on the test drives, and the fit c·N^a of those bytes",
+        min=0.01, max=1.0)] = None,
+    validation_seed: Annotated[int, typer.Option(
+        help="--fixed-precision: seed of the validation routes and drives", min=1)] = 1,
+    emission_scales: Annotated[str, typer.Option(
+        help="--fixed-precision: the filter's emission scales searched (comma-separated); the "
+        "one with the smallest code on validation is kept")] = "0.1",
+    start_fraction: Annotated[float | None, typer.Option(
+        help="--fixed-precision: the first length's guess of Στ/N (the search's cost, not its "
+        "answer; default: the preset's own code)", min=1e-6, max=1.0)] = None,
 ) -> None:
     """Bytes (fitted as c·N^a), drive precision and per-frame filter cost (windowed tracker
-    beside the whole-route filter) of a preset on SYNTHETIC routes of each length."""
+    beside the whole-route filter) of a preset on SYNTHETIC routes of each length; with
+    --fixed-precision, the smallest code reaching a drive precision per length instead."""
+    from service.bench.drive_fixed_precision import FixedPrecisionOptions
     from service.bench.drive_scaling import ScalingOptions, run_drive_scaling
+
+    if fixed_precision is not None:
+        fixed = FixedPrecisionOptions(fixed_precision, _sizes(sizes), n_features, query_noise,
+                                      drives, drive_length, preset, seed=0,
+                                      validation_seed=validation_seed,
+                                      emission_scales=_scales(emission_scales),
+                                      start_fraction=start_fraction)  # fmt: skip
+        _fixed(fixed, work_dir, out)
+        return
 
     opts = ScalingOptions(_sizes(sizes), n_features, query_noise, drives, drive_length,
                           preset=preset)  # fmt: skip

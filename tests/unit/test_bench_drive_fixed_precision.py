@@ -1,0 +1,80 @@
+"""``gridplace bench drive-scaling --fixed-precision``: the search for the smallest code that
+reaches a drive precision, and the mode end to end on small SYNTHETIC routes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from service.bench.drive_fixed_precision import Evaluate, grid_fraction, grid_index, search
+from service.cli import app
+
+
+def _threshold(last: int, calls: list[tuple[int, float]],
+               scale_shift: dict[float, int] | None = None) -> Evaluate:
+    """A precision curve that reaches the target for grid points ``j <= last`` (larger codes)."""
+
+    def evaluate(j: int, scale: float) -> dict[str, Any]:
+        calls.append((j, scale))
+        edge = last + (scale_shift or {}).get(scale, 0)
+        return {"precision": 0.99 if j <= edge else 0.5 + 0.01 * (20 - j)}
+
+    return evaluate
+
+
+@settings(max_examples=200, deadline=None)
+@given(last=st.integers(-1, 9), start=st.integers(0, 10))
+def test_the_search_finds_the_smallest_passing_code_from_any_start(last: int, start: int) -> None:
+    calls: list[tuple[int, float]] = []
+    out = search(_threshold(last, calls), start, 0.95, (0.1,))
+    chosen = out["chosen"]
+    assert chosen["index"] == (last if last >= 0 else None)
+    assert chosen["bounded"]  # the next smaller code (or f = 1 when none passes) was measured
+    assert len(calls) == len(set(calls)) <= abs(start - last) + 2  # each point measured once
+    assert len(out["trials"]) == len(calls)
+
+
+def test_the_scale_with_the_smallest_code_is_kept() -> None:
+    calls: list[tuple[int, float]] = []
+    out = search(_threshold(3, calls, {0.3: 2}), 4, 0.95, (0.1, 0.3))
+    assert out["chosen"]["emission_scale"] == 0.3 and out["chosen"]["index"] == 5
+    assert [a["index"] for a in out["answers"]] == [3, 5]
+
+
+def test_the_grid_steps_by_root_two() -> None:
+    assert grid_fraction(0) == 1.0 and abs(grid_fraction(2) - 0.5) < 1e-12
+    assert all(grid_index(grid_fraction(j)) == j for j in range(20))
+    assert grid_index(1.0) == 0 and grid_index(0.3) == 3  # 0.3 is nearest to 2^-1.5 = 0.354
+
+
+def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
+    out = tmp_path / "fixed.json"
+    result = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
+                                      "--sizes", "2000,4000", "--drives", "1",
+                                      "--drive-length", "100", "--query-noise", "0.2",
+                                      "--work-dir", str(tmp_path), "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert data["data"].startswith("SYNTHETIC") and data["mode"] == "fixed-precision"
+    assert [r["n_frames"] for r in data["sizes"]] == [2000, 4000]
+    for r in data["sizes"]:
+        trials = r["validation"]["trials"]
+        assert trials and all(0 <= t["precision"] <= 1 for t in trials)
+        assert r["reached"]
+        chosen = r["validation"]["chosen"]
+        assert chosen["precision"] >= 0.9 and r["index"] == chosen["index"]
+        # the answer's code on the test route is the size searched on validation
+        assert abs(sum(r["periods"]) / r["n_frames"] - r["fraction"]) < 0.01
+        assert 0 <= r["test_precision"] <= 1 and r["code_bytes"] < r["map_bytes"]
+        smaller = [t for t in trials if t["index"] == r["index"] + 1
+                   and t["emission_scale"] == r["emission_scale"]]
+        assert all(t["precision"] < 0.9 for t in smaller)
+    assert "exponent" in data["code_bytes_fit"] and "minimal code bytes" in result.output
+    bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
+                                   "--emission-scales", "0.1,-1"])  # fmt: skip
+    assert bad.exit_code == 2
