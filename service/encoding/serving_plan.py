@@ -18,13 +18,11 @@ computes everything in float64 (the reference; ``frame_log_scores`` always does)
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from service.encoding import float64_cache
 from service.encoding.base import Localization
 from service.encoding.exact_decode import (
     FreeDecode,
@@ -32,153 +30,19 @@ from service.encoding.exact_decode import (
     frame_scores_mixed_radix,
     frame_scores_table,
     free_decode,
-    log_softmax_last,
     table_decode,
 )
 from service.encoding.inverted_file import InvertedFile, Search
 from service.encoding.ivf_scan import search as ivf_search
-from service.encoding.phases import index_to_labels, place_values
-from service.encoding.quantization import (
-    FLOAT32_COPY_BYTES,
-    int8_max_row_norm,
-    int8_products,
-    int8_products64,
-)
+from service.encoding.phases import index_to_labels
+from service.encoding.residue_decode import residue_decode
+from service.encoding.serving_blocks import DigitBlock, PhaseBlock
 from service.encoding.single_query import SingleQueryPath
 
 Precision = Literal["float32", "float64"]
-_U32 = 2.0**-24  # unit roundoff of float32
 _SLACK = 1e-12  # relative slack for float64 rounding of the reference itself
 _F32_MAX = float(np.finfo(np.float32).max)
 _BLOCK_SCORES = 1 << 22  # (query, chunk, digit, class) scores decoded at once: 32 MB float64
-
-
-def _kappa(n: int) -> float:
-    """Error factor of a float32 dot product of length ``n`` with rounded inputs."""
-    g = (n + 3) * _U32
-    return 1.01 * g / (1.0 - g) + 4.0 * n * 2.0**-53
-
-
-@dataclass(frozen=True)
-class DigitBlock:
-    """One linear classifier: selected columns, float32 weights, float64 biases."""
-
-    columns: np.ndarray  # (d',) int64
-    weight: np.ndarray  # (τ, d') float32, C-contiguous (the stored array when float32)
-    bias: np.ndarray  # (τ,) float64
-    linear: Any  # the stored QuantizedLinear (float64 reference products)
-    beta: float  # inverse temperature applied to the scores
-    error: float  # κ(d')·max‖w_c‖·β: score error per unit of ‖z‖
-    kept64: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, compare=False,
-                                                         repr=False)  # fmt: skip
-
-    rowscale: np.ndarray | None = None  # (τ,) float32 when ``weight`` is the stored int8
-
-    @classmethod
-    def of(cls, classifier: Any) -> DigitBlock:
-        lin = classifier.linear
-        temperature = float(getattr(classifier, "temperature", None) or 1.0)
-        beta = 1.0 / temperature
-        columns = np.asarray(classifier.columns, dtype=np.int64)
-        bias = lin.bias.astype(np.float64) if lin.width is None else np.zeros(lin.n_classes)
-        if lin.scale is not None and lin.weight.size * 4 > FLOAT32_COPY_BYTES:
-            norm = int8_max_row_norm(lin.weight, lin.scale)
-            return cls(columns, lin.weight, bias, lin, beta,
-                       _kappa(lin.weight.shape[1]) * norm * 1.001 * beta,
-                       rowscale=lin.scale.astype(np.float32))  # fmt: skip
-        W = lin.weight
-        if lin.width is not None:  # binary: the signs times the column widths
-            W = lin.dequantized()[0]
-        elif lin.scale is not None:
-            W = W.astype(np.float64) * lin.scale.astype(np.float64)[:, None]
-        W32 = np.ascontiguousarray(W, dtype=np.float32)
-        norm = float(np.sqrt(np.einsum("ij,ij->i", W32, W32, dtype=np.float64)).max(initial=0.0))
-        return cls(columns, W32, bias, lin, beta,
-                   _kappa(W32.shape[1]) * norm * 1.001 * beta)  # fmt: skip
-
-    def products(self, Zc: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Float32 ``Zc @ Wᵀ`` of float32 rows already restricted to the columns."""
-        if self.rowscale is not None:
-            return int8_products(Zc, self.weight, self.rowscale, out)
-        return np.matmul(Zc, self.weight.T, out=out)
-
-    @property
-    def n_classes(self) -> int:
-        return int(self.weight.shape[0])
-
-    @property
-    def long64(self) -> bool:
-        """Whether the float64 weights exceed what :mod:`float64_cache` may keep: their
-        products are then made from the int8 rows block by block, never as one float64 copy."""
-        return self.weight.size * 8 > float64_cache.CACHE_BYTES
-
-    def raw(self, Z: np.ndarray, precision: Precision, out: np.ndarray | None = None) -> np.ndarray:
-        """Scores ``β·(z·w_c + b_c)`` of every class: float32 products of ``Z`` (float32)
-        or, for ``float64``, the stored model's own float64 arithmetic."""
-        if precision == "float64" and self.rowscale is not None and self.long64:
-            prod = int8_products64(Z.take(self.columns, axis=1), self.weight, self.rowscale)
-            b = self.bias
-        elif precision == "float64":
-            W, b = self.dense64()
-            prod = Z.take(self.columns, axis=1) @ W.T
-        else:  # take() gathers columns ~2x faster than fancy indexing
-            prod, b = self.products(Z.take(self.columns, axis=1)), self.bias
-        out = np.add(prod, b, out=out)
-        if self.beta != 1.0:
-            out *= self.beta
-        return out
-
-    def dense64(self) -> tuple[np.ndarray, np.ndarray]:
-        """Float64 weights exactly as the stored model dequantises them (kept within the
-        budget of :mod:`service.encoding.float64_cache`)."""
-        return float64_cache.kept(self.kept64, self._make_dense64)
-
-    def _make_dense64(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.linear.dequantized()  # type: ignore[no-any-return]
-
-    def log_probs64(self, Z64: np.ndarray) -> np.ndarray:
-        return log_softmax_last(self.raw(Z64, "float64"))
-
-
-@dataclass(frozen=True)
-class PhaseBlock:
-    """One phase encoder (a chunk): its digits and how frames map to digit labels."""
-
-    digits: tuple[DigitBlock, ...]
-    periods: tuple[int, ...]
-    n_frames: int
-    place: np.ndarray  # (k,) int64 place values of the mixed-radix code
-    last: np.ndarray  # (k,) int64 digits of N − 1
-    labels: np.ndarray | None  # (N, k) label table when not pure mixed radix
-    error: float  # Σ_j 2·error_j: frame-score error per unit of ‖z‖
-
-    @classmethod
-    def of(cls, encoder: Any) -> PhaseBlock:
-        periods = tuple(int(p) for p in encoder.periods_)
-        digits = tuple(DigitBlock.of(dc) for dc in encoder.digits_)
-        n = int(encoder.n_frames_)
-        labels = _label_table(encoder, periods, n, len(digits))
-        last_periods = periods if labels is None else tuple(d.n_classes for d in digits)
-        last = index_to_labels([n - 1], periods)[0] if labels is None else labels[-1]
-        return cls(digits, last_periods, n, place_values(periods), np.asarray(last, np.int64),
-                   labels, 2.0 * sum(d.error for d in digits))  # fmt: skip
-
-    @property
-    def width(self) -> int:
-        return max(d.n_classes for d in self.digits)
-
-
-def _label_table(encoder: Any, periods: tuple[int, ...], n: int, k: int) -> np.ndarray | None:
-    """``None`` for the mixed-radix digits of the periods, else the model's own table."""
-    table_fn = getattr(encoder, "frame_labels_", None)
-    if table_fn is None:
-        return None
-    table = np.asarray(table_fn() if callable(table_fn) else table_fn, dtype=np.int64)
-    if k == len(periods) and math.prod(periods) >= n and np.array_equal(
-        table, index_to_labels(np.arange(n), periods)
-    ):
-        return None
-    return table
 
 
 @dataclass(frozen=True)
@@ -379,13 +243,20 @@ class ServingPlan:
             rows = np.flatnonzero(pc == c)
             if rows.size == 0:
                 continue
-            labels = phase.labels
-            if labels is None:
-                labels = index_to_labels(np.arange(phase.n_frames), phase.periods)
-            idx, b, second = table_decode(free.log_probs(S, rows), labels)
+            margin = None  # the stability test below, as the residue decode needs it
+            if stable is not None and zerr is not None:
+                margin = 2.0 * self._digit_error[c].sum() * zerr[q[rows]]
+            lp = free.log_probs(S, rows)
+            if phase.residue:
+                idx, b, second = residue_decode(lp, phase.periods, phase.n_frames, margin)
+            else:
+                labels = phase.labels
+                if labels is None:
+                    labels = index_to_labels(np.arange(phase.n_frames), phase.periods)
+                idx, b, second = table_decode(lp, labels)
             local[rows], free.best[rows], valid[rows] = idx, b, True
-            if stable is not None and zerr is not None:  # frames differ by Σ_j Δs_j at most
-                stable[rows] = b - second > 2.0 * self._digit_error[c].sum() * zerr[q[rows]]
+            if margin is not None and stable is not None:  # frames differ by Σ_j Δs_j at most
+                stable[rows] = b - second > margin
 
     def localize(self, Q: np.ndarray, search: Search | None = None) -> Localization:
         """:meth:`decode` as the estimators' :class:`Localization`."""

@@ -219,7 +219,7 @@ def test_long_int8_weights_score_every_frame_without_a_float64_copy(
     Q = route.query[:6].astype(np.float64)
     copied = plan_for(model)
     want, want64 = copied.frame_log_scores(Q), copied.decode(Q, "float64")
-    monkeypatch.setattr("service.encoding.serving_plan.FLOAT32_COPY_BYTES", 0)
+    monkeypatch.setattr("service.encoding.serving_blocks.FLOAT32_COPY_BYTES", 0)
     monkeypatch.setattr("service.encoding.float64_cache.CACHE_BYTES", 0)
     plan = ServingPlan(model)
     digit = plan.phases[0].digits[0]
@@ -242,7 +242,7 @@ def test_large_int8_weights_are_served_without_a_float32_copy(
     model = robust(search="flat").fit(route.reference)
     Q = route.query.astype(np.float64)
     copied = plan_for(model)
-    monkeypatch.setattr("service.encoding.serving_plan.FLOAT32_COPY_BYTES", 0)
+    monkeypatch.setattr("service.encoding.serving_blocks.FLOAT32_COPY_BYTES", 0)
     plan = ServingPlan(model)
     digit = plan.phases[0].digits[0]
     assert digit.weight is model.digits_[0].linear.weight and digit.rowscale is not None
