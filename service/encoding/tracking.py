@@ -25,7 +25,9 @@ a relocalisation is rare (once every ``~3·S·N / budget`` frames at most) and l
 credit does, after which the tracker opens windows at the whole posterior's best places.
 
 A vehicle not yet localised (a fresh tracker) runs on the whole route until its belief
-concentrates where ``S·N`` is within the budget. On a longer route it starts widened instead:
+concentrates where ``S·N`` is within the budget or the widened windows would hold more than
+1/16 of the route (:data:`WIDE_START`: 32,592 frames at the defaults, about where a frame of
+widened windows costs as much as one on the whole route). On a longer route it starts widened:
 windows at the first frame's ``window_frames // width`` best candidate places (the scorer's
 class-level candidates for a code), the rest of the route the outside at the uniform
 density, and the whole route only as its credit allows, as a localised tracker that lost its
@@ -75,6 +77,7 @@ CHECK_CLASSES = 2048  # class scores per frame a code's global checks may cost, 
 EVIDENCE_MEMORY = 0.2  # weight of the newest frame in the running evidence ratio
 EVIDENCE_LOST = 0.0  # a running log evidence ratio at or below this: the windows lost the vehicle
 BANKED = REPLAY  # whole-route frames the relocalisation credit may save up
+WIDE_START = 16  # a fresh tracker starts in windows where they hold at most 1/16 of the route
 _FLAT = 1e-10
 
 
@@ -103,8 +106,10 @@ class DriveTracker:
     # -- state -----------------------------------------------------------------------
     def reset(self) -> None:
         """Forget the vehicle."""
-        # a long route (S·N past the budget): the first frame opens widened windows instead
-        long = self.windowed_allowed and self.whole_cost > self.config.whole_route_budget
+        # a long route (S·N past the budget, windows a small share of it): the first frame
+        # opens widened windows instead
+        long = (self.windowed_allowed and self.whole_cost > self.config.whole_route_budget
+                and self.n_frames >= WIDE_START * self.max_windows * self.width)  # fmt: skip
         self.whole: SequenceFilter | None = None if long else SequenceFilter(self.n_frames,
                                                                             self.config)
         self.P: np.ndarray | None = None  # (S, B, W) window states
