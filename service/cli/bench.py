@@ -151,12 +151,14 @@ def bench_scale_real(
     single: Annotated[int, typer.Option(help="single-query repetitions")] = 200,
     label: Annotated[str, typer.Option(help="what the descriptors are, for the report")] = "",
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-scale-real.json"),
+    nlist: Annotated[int | None, typer.Option(help="lists of the inverted file (default: ≈ 4√N)",
+                                              min=1)] = None,  # fmt: skip
 ) -> None:
     """The default preset's inverted file on real descriptors: precision against its flat scan
     at the default nprobe and at larger shares of the lists."""
     from service.bench.scale_real import run_scale_real_bench
 
-    run_scale_real_bench(reference, query, out, preset, single, label)
+    run_scale_real_bench(reference, query, out, preset, single, label, nlist)
 
 
 @app.command("growth")
