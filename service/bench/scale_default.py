@@ -187,7 +187,7 @@ def _faiss_child(route: str, kind: str, n_queries: int, n_single: int, batch: in
                                               faiss.ScalarQuantizer.QT_8bit)  # fmt: skip
         take = np.sort(np.random.default_rng(0).choice(n, min(n, 48 * nlist), replace=False))
         index.train(np.ascontiguousarray(X[take]))
-        index.nprobe = default_nprobe(nlist)
+        index.nprobe = default_nprobe(nlist, n)
         extra: dict[str, Any] = {"nlist": nlist, "nprobe": int(index.nprobe)}
     else:
         index = faiss.IndexHNSWFlat(d, 32)

@@ -66,7 +66,7 @@ class PhaseEncoder(PlaceRecognizer):
         frame (exact), ``ivf`` through an inverted file of its prototypes, ``auto`` the
         inverted file on long routes (:mod:`service.encoding.inverted_file`).
     nlist, nprobe : lists of the inverted file and lists scanned per query (``None``: ≈ 4√N
-        and 20 of them).
+        and 20 of them, or as many as hold 4,096 prototypes on average where 20 hold fewer).
 
     The constructor's defaults are the paper's algorithm, so the parameters recorded in older
     artifacts keep their meaning; the product default is the ``robust`` preset

@@ -36,6 +36,11 @@ SEARCH_MODES: tuple[str, ...] = ("flat", "ivf", "auto")
 #: well under a millisecond and is exact).
 AUTO_MIN_FRAMES = 65_536
 DEFAULT_NPROBE = 20
+#: Prototypes a query's default lists hold at least, on average: below it the scan costs less
+#: than the query's fixed costs (front-end, centroid ranking), and probing fewer lists loses
+#: precision for little time; 20 lists of a 1M route hold ≈ 5,000, so this floor binds only
+#: on shorter routes.
+MIN_CANDIDATES = 4_096
 _KMEANS_POINTS = 64  # training points per centroid (a sample of a long route)
 _KMEANS_ITER = 12
 _BLOCK_ROWS = 16_384  # prototypes dequantised / assigned at a time
@@ -57,14 +62,20 @@ def default_nlist(n_frames: int) -> int:
     return max(1, min(n_frames, round(4.0 * math.sqrt(n_frames))))
 
 
-def default_nprobe(nlist: int) -> int:
-    """Lists scanned per query: :data:`DEFAULT_NPROBE` whatever the route's length (all of
-    a short route's). The lists grow as ``√N``, and on the SYNTHETIC routes of
-    ``gridplace bench scale`` the share of the prototypes that keeps the flat scan's precision
-    falls as they grow: 20 lists were within 0.6 points of it at 100,000 frames (1.6 % of the
-    prototypes) and 0.5 at 1,000,000 (0.5 %), on validation queries of those routes
-    (docs/RESULTS.md, "Scale")."""
-    return max(1, min(nlist, DEFAULT_NPROBE))
+def default_nprobe(nlist: int, n_frames: int) -> int:
+    """Lists scanned per query: :data:`DEFAULT_NPROBE`, or more where that many lists hold
+    fewer than :data:`MIN_CANDIDATES` prototypes on average (all of a short route's).
+
+    On the SYNTHETIC routes of ``gridplace bench scale`` the share of the prototypes that keeps
+    the flat scan's precision falls as the lists grow (``√N``): 20 lists were within 0.6 points
+    of it at 100,000 frames (1.6 % of the prototypes) and 0.5 at 1,000,000 (0.5 %), on
+    validation queries of those routes. Queries in another condition than the map need a far
+    larger share: on Nordland (summer map, winter queries, 3,576 frames, 239 lists) staying
+    within 0.5 points took 60 % of the prototypes on the validation half (docs/RESULTS.md,
+    "Scale"). The floor keeps a query's scan at the work the 1M target is met at, so a route
+    too short for its lists to separate places is scanned whole."""
+    p = max(DEFAULT_NPROBE, math.ceil(MIN_CANDIDATES * nlist / max(1, n_frames)))
+    return max(1, min(nlist, p))
 
 
 def _dequantised(weight: np.ndarray, scale: np.ndarray | None, s: int, e: int) -> np.ndarray:
@@ -127,7 +138,7 @@ class InvertedFile:
         members = np.argsort(assign, kind="stable").astype(np.int32)
         offsets = np.zeros(k + 1, dtype=np.int64)
         np.cumsum(np.bincount(assign, minlength=k), out=offsets[1:])
-        probe = default_nprobe(k) if nprobe is None else int(nprobe)
+        probe = default_nprobe(k, n) if nprobe is None else int(nprobe)
         return cls(centroids, members, offsets, max(1, min(k, probe)))
 
     @property

@@ -12,7 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.encoding import PhaseEncoder, load_model, save_model
-from service.encoding.inverted_file import InvertedFile, default_nlist, default_nprobe
+from service.encoding.inverted_file import (DEFAULT_NPROBE, MIN_CANDIDATES, InvertedFile,
+                                            default_nlist, default_nprobe)
 from service.encoding import ivf_scan
 from service.encoding.ivf_scan import search
 from service.encoding.quantization import QuantizedLinear, int8_products, int8_products64
@@ -108,10 +109,20 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
 
 
 def test_the_default_lists_and_probes() -> None:
-    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000) == 20
-    assert default_nlist(100_000) == 1265 and default_nprobe(1265) == 20
-    assert default_nlist(3) == 3 and default_nprobe(3) == 3
-    assert default_nprobe(100) == 20
+    assert default_nlist(1_000_000) == 4000 and default_nprobe(4000, 1_000_000) == 20
+    assert default_nlist(100_000) == 1265 and default_nprobe(1265, 100_000) == 52
+    assert default_nlist(3_576) == 239 and default_nprobe(239, 3_576) == 239  # Nordland: whole
+    assert default_nlist(3) == 3 and default_nprobe(3, 3) == 3
+
+
+@given(st.integers(1, 5_000_000), st.floats(0.05, 1.0))
+def test_the_default_probes_hold_the_candidate_floor(n: int, f: float) -> None:
+    """At least 20 lists, and lists holding MIN_CANDIDATES prototypes on average, or all."""
+    nlist = max(1, min(n, round(f * default_nlist(n))))
+    p = default_nprobe(nlist, n)
+    assert 1 <= p <= nlist
+    assert p == nlist or (p >= DEFAULT_NPROBE and p * n / nlist >= MIN_CANDIDATES)
+    assert p == nlist or p == DEFAULT_NPROBE or (p - 1) * n / nlist < MIN_CANDIDATES  # the least
 
 
 @pytest.mark.parametrize("n_queries", [1, 40])
@@ -127,12 +138,21 @@ def test_ivf_probing_everything_answers_as_the_flat_scan(n_queries: int) -> None
 
 def test_ivf_with_few_probes_keeps_the_flat_scans_precision() -> None:
     route = smooth_route(3000, 48, seed=4, query_noise=0.8)
-    model = robust(search="ivf").fit(route.reference)
-    assert model.ivf_ is not None and model.ivf_.nprobe < model.ivf_.nlist
+    model = robust(search="ivf", nprobe=20).fit(route.reference)  # below the default's floor
+    assert model.ivf_ is not None and model.ivf_.nprobe == 20 < model.ivf_.nlist
     truth = np.arange(3000)
     flat = np.abs(model.localize(route.query, search="flat").index - truth) <= 5
     ivf = np.abs(model.localize(route.query).index - truth) <= 5
     assert ivf.mean() >= flat.mean() - 0.01
+
+
+def test_the_default_scans_a_short_routes_lists_whole() -> None:
+    """Fewer than MIN_CANDIDATES prototypes in all: every list, the flat scan's answers."""
+    route = smooth_route(1500, 32, seed=6, query_noise=0.8)
+    model = robust(search="ivf").fit(route.reference)
+    assert model.ivf_ is not None and model.ivf_.nprobe == model.ivf_.nlist == default_nlist(1500)
+    Q = route.query[:300].astype(np.float64)
+    np.testing.assert_array_equal(model.localize(Q).index, model.localize(Q, search="flat").index)
 
 
 def test_auto_and_flat_build_no_inverted_file_on_a_short_route() -> None:
