@@ -58,9 +58,10 @@ class LoadedModel:
     @property
     def frames_per_query(self) -> int:
         """The most rows one query is scored against when it is localized: every route frame,
-        or with an inverted file the list centroids and the frames of its probed lists."""
+        or with an inverted file the list centroids and the frames of its probed lists (every
+        frame where it probes every list: served by the flat scan)."""
         ivf = getattr(self.model, "ivf_", None)
-        return self.n_frames if ivf is None else ivf.most_scored()
+        return self.n_frames if ivf is None or ivf.probes_everything else ivf.most_scored()
 
     @property
     def entries_per_query(self) -> int:

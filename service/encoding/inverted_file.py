@@ -146,6 +146,12 @@ class InvertedFile:
         return int(self.centroids.shape[0])
 
     @property
+    def probes_everything(self) -> bool:
+        """Whether a query scans every list: then the flat scan gives the same answers without
+        ranking centroids and gathering rows, and serving uses it."""
+        return self.nprobe >= self.nlist
+
+    @property
     def nbytes(self) -> int:
         return int(self.centroids.nbytes + self.members.nbytes + self.offsets.nbytes)
 

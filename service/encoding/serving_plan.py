@@ -153,11 +153,13 @@ class ServingPlan:
         """Exact decode of validated float64 queries ``(n, d)`` (one query: its own path), in
         row blocks whose score arrays stay within :data:`_BLOCK_SCORES` entries (a model with
         one class per frame has ``N`` scores per query). A model with an inverted file answers
-        float32 queries through it unless ``search="flat"`` asks for the exact scan."""
-        if self.ivf is not None and precision == "float32" and search != "flat":
+        float32 queries through it unless ``search="flat"`` asks for the exact scan or it probes
+        every list (the flat scan's answers, faster)."""
+        ivf = None if self.ivf is None or self.ivf.probes_everything else self.ivf
+        if ivf is not None and precision == "float32" and search != "flat":
             dg = self.phases[0].digits[0]
             Zc = np.ascontiguousarray(self.normalise(Q, np.float32).take(dg.columns, axis=1))
-            index, log_score = ivf_search(self.ivf, dg, Zc)
+            index, log_score = ivf_search(ivf, dg, Zc)
             n = Q.shape[0]
             return Decoded(index, np.zeros(n, np.int64), log_score, np.zeros(n, bool))
         rows = max(1, _BLOCK_SCORES // max(1, self.top * self.k * self.width))

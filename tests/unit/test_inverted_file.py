@@ -131,9 +131,26 @@ def test_ivf_probing_everything_answers_as_the_flat_scan(n_queries: int) -> None
     model = robust(search="ivf", nlist=30, nprobe=30).fit(route.reference)
     assert model.ivf_ is not None and model.ivf_.nlist == 30
     Q = route.query[:n_queries].astype(np.float64)
-    flat, ivf = model.localize(Q, search="flat"), model.localize(Q)
-    np.testing.assert_array_equal(ivf.index, flat.index)
-    np.testing.assert_allclose(ivf.log_score, flat.log_score, rtol=1e-5, atol=1e-6)
+    plan = plan_for(model)
+    dg = plan.phases[0].digits[0]
+    Zc = np.ascontiguousarray(plan.normalise(Q, np.float32).take(dg.columns, axis=1))
+    index, log_score = search(model.ivf_, dg, Zc, 30)  # the index itself, every list
+    flat = model.localize(Q, search="flat")
+    np.testing.assert_array_equal(index, flat.index)
+    np.testing.assert_allclose(log_score, flat.log_score, rtol=1e-5, atol=1e-6)
+
+
+def test_an_index_probing_every_list_is_served_by_the_flat_scan() -> None:
+    route = smooth_route(900, 48, seed=3)
+    model = robust(search="ivf", nlist=30, nprobe=30).fit(route.reference)
+    Q = route.query[:40].astype(np.float64)
+    with patch("service.encoding.serving_plan.ivf_search", side_effect=AssertionError):
+        served = model.localize(Q)
+    np.testing.assert_array_equal(served.index, model.localize(Q, search="flat").index)
+    partial = robust(search="ivf", nlist=30, nprobe=29).fit(route.reference)
+    with patch("service.encoding.serving_plan.ivf_search", side_effect=AssertionError):
+        with pytest.raises(AssertionError):
+            partial.localize(Q)
 
 
 def test_ivf_with_few_probes_keeps_the_flat_scans_precision() -> None:
