@@ -25,6 +25,9 @@ than the true frame win a long stop by repetition. The filter reads the repetiti
   ``move_novelty / 2``, 1 from ``move_novelty`` on; with ``move_novelty = 0`` every frame that
   is no repeat) or neither; a state's weight is ``r · p(v) + u · (1 − p(v)) + (1 − r − u)``.
 
+A frame that comes with odometry is read as new: the measured displacement moves every state,
+so the speed states say nothing about the motion and a stopped state is not held in place.
+
 ``repeat_novelty = 0`` (the default) turns both off: every frame is new evidence for every
 state. Measured on Nordland (``docs/RESULTS.md``, "Drives"): with ``repeat_novelty = 1e-3`` a
 stop's repeated or near-identical (3 % descriptor noise) frames are followed better by every

@@ -159,8 +159,8 @@ class SequenceFilter:
         ``repeat``: the frame's repetition of the previous one when the caller measured it
         (:mod:`service.encoding.repeats`), else the filter measures it."""
         L = check_scores(frame_log_scores, self.n_frames)
-        if repeat is None and self.config.repeat_novelty <= 0:
-            repeat = NEW
+        if repeat is None and (self.config.repeat_novelty <= 0 or odometry is not None):
+            repeat = NEW  # odometry measures the motion: the speed belief does not move it
         elif repeat is None:
             from service.encoding.drive_scoring import route_sample
 
@@ -172,6 +172,8 @@ class SequenceFilter:
         self, lik: np.ndarray, odometry: float | None = None, repeat: Repeat = NEW
     ) -> SequenceEstimate:
         """:meth:`update` with the frame's likelihood ``(N,)`` float32 already computed."""
+        if odometry is not None:
+            repeat = NEW
         if self._frames:
             eps = self.config.relocalization
             pred = np.empty_like(self._post)

@@ -198,7 +198,7 @@ class DriveTracker:
         self.frames += 1
         recent = list(self.recent)
         repeat = NEW  # the repeat test costs the sample frames' successors: only when on
-        if self.config.repeat_novelty > 0:
+        if self.config.repeat_novelty > 0 and odometry is None:  # odometry measures the motion
             repeat = self.repeats.observe(np.asarray(self.scorer.sample_scores(prep)),
                                           np.asarray(self.scorer.frames(prep, self.next_frames)))
         self.recent.append((prep, odometry, repeat))

@@ -229,3 +229,15 @@ def test_a_code_models_drive_with_a_stop_reads_its_repeats_through_the_code_scor
     assert (np.abs(tracked.index - whole.index) <= 2).mean() > 0.95
     assert (np.abs(tracked.index[150:170] - 250) <= 5).all()  # held through the stop
     assert tracked.speed[165] < 0.5 < tracked.speed[-1]  # stopped, then moving again
+
+
+def test_frames_with_odometry_are_read_as_new() -> None:
+    """Odometry moves every state by the measured displacement: the speed states say nothing
+    about the motion, so the repeat reading leaves such a drive as it was."""
+    S, truth = stop_at_an_alias(0.0)
+    u = np.diff(truth, prepend=truth[:1]).astype(float)
+    for tracking in (False, True):
+        on = CONFIG.model_copy(update={"tracking": tracking})
+        off = on.model_copy(update={"repeat_novelty": 0.0})
+        np.testing.assert_array_equal(filter_sequence(S, on, odometry=u).index,
+                                      filter_sequence(S, off, odometry=u).index)  # fmt: skip
