@@ -22,16 +22,9 @@ its global checks open windows at up to ``window_frames // width`` candidate pla
 frame costing ``S·N`` and going there and back ``S·N`` each. On a short route (``S·N`` within
 the budget) every such frame goes to the whole route, as the whole filter would; on a long one
 a relocalisation is rare (once every ``~3·S·N / budget`` frames at most) and lasts while its
-credit does, after which the tracker opens windows at the whole posterior's best places.
-
-A vehicle not yet localised (a fresh tracker) runs on the whole route until its belief
-concentrates where ``S·N`` is within the budget or the widened windows would hold more than
-1/16 of the route (:data:`WIDE_START`: 32,592 frames at the defaults, about where a frame of
-widened windows costs as much as one on the whole route). On a longer route it starts widened:
-windows at the first frame's ``window_frames // width`` best candidate places (the scorer's
-class-level candidates for a code), the rest of the route the outside at the uniform
-density, and the whole route only as its credit allows, as a localised tracker that lost its
-evidence.
+credit does, after which the tracker opens windows at the whole posterior's best places. A
+vehicle not yet localised (a fresh tracker) runs on the whole route until its belief
+concentrates, whatever the budget.
 
 The emission is the whole filter's: z-scored against the spread of the query's scores over the
 route (a fixed sample of frames for a code's scorer) and scaled by ``emission_scale``. Per
@@ -59,13 +52,7 @@ from service.encoding.sequence import (
     mean_evidence,
 )
 from service.encoding.sequence_config import SequenceConfig
-from service.encoding.tracking_windows import (
-    best_places,
-    covered,
-    frames_outside,
-    uniform_windows,
-    windows_at,
-)
+from service.encoding.tracking_windows import best_places, covered, frames_outside
 from service.errors import InvalidInputError
 
 MAX_WINDOWS = 16  # windows while the evidence holds (window_frames // width once widened)
@@ -77,7 +64,6 @@ CHECK_CLASSES = 2048  # class scores per frame a code's global checks may cost, 
 EVIDENCE_MEMORY = 0.2  # weight of the newest frame in the running evidence ratio
 EVIDENCE_LOST = 0.0  # a running log evidence ratio at or below this: the windows lost the vehicle
 BANKED = REPLAY  # whole-route frames the relocalisation credit may save up
-WIDE_START = 16  # a fresh tracker starts in windows where they hold at most 1/16 of the route
 _FLAT = 1e-10
 
 
@@ -106,12 +92,7 @@ class DriveTracker:
     # -- state -----------------------------------------------------------------------
     def reset(self) -> None:
         """Forget the vehicle."""
-        # a long route (S·N past the budget, windows a small share of it): the first frame
-        # opens widened windows instead
-        long = (self.windowed_allowed and self.whole_cost > self.config.whole_route_budget
-                and self.n_frames >= WIDE_START * self.max_windows * self.width)  # fmt: skip
-        self.whole: SequenceFilter | None = None if long else SequenceFilter(self.n_frames,
-                                                                            self.config)
+        self.whole: SequenceFilter | None = SequenceFilter(self.n_frames, self.config)
         self.P: np.ndarray | None = None  # (S, B, W) window states
         self.lo = np.zeros(0, dtype=np.int64)  # each window's first frame
         self.age = np.zeros(0, dtype=np.int64)
@@ -161,8 +142,7 @@ class DriveTracker:
         """Memory this vehicle's state holds now."""
         if self.whole is not None:
             return self.whole.nbytes
-        if self.P is None:  # no frame yet
-            return 0
+        assert self.P is not None
         return int(self.P.nbytes + self.lo.nbytes + self.age.nbytes)
 
     @property
@@ -175,8 +155,6 @@ class DriveTracker:
         """Posterior over frames ``(N,)`` float64 (outside mass spread uniformly)."""
         if self.whole is not None:
             return self.whole.posterior
-        if self.P is None:  # no frame yet: every frame equally likely
-            return np.full(self.n_frames, 1.0 / self.n_frames)
         out = np.full(self.n_frames, self.outside / max(1, self._n_outside()))
         out[self._covered()] = 0.0
         assert self.P is not None
@@ -215,20 +193,7 @@ class DriveTracker:
             if self.windowed_allowed and self.frames >= 2:
                 self._maybe_track(est)
             return est
-        if self.P is None:
-            self._start_wide(prep)
         return self._update_windows(prep, odometry, repeat, recent)
-
-    def _start_wide(self, prep: Any) -> None:
-        """A fresh tracker on a long route: windows at the first frame's best candidate places
-        (up to ``max_windows``), every frame at the uniform prior; widened."""
-        cands = self.scorer.candidates(prep, self.max_windows)
-        self.lo = windows_at(cands, self.width, self.n_frames)
-        self.P = uniform_windows(self.lo, self.width, self.n_frames, int(self.speeds.size))
-        self.age = np.zeros(self.lo.size, dtype=np.int64)
-        self.outside = self._n_outside() / self.n_frames
-        self.evidence = 0.0
-        self.localised, self.wide = True, True
 
     def _maybe_track(self, est: SequenceEstimate) -> None:
         assert self.whole is not None

@@ -1,6 +1,5 @@
 """Where a vehicle tracker's windows lie on the route (:mod:`service.encoding.tracking`): the
-frames they cover, the frames they leave outside, the places a posterior puts windows at, and
-the first windows of a tracker that does not know where it starts.
+frames they cover, the frames they leave outside, and the places a posterior puts windows at.
 
 A window is ``width`` consecutive frames from its first frame ``lo``; windows may overlap.
 """
@@ -48,24 +47,3 @@ def best_places(posterior: np.ndarray, width: int, most: int) -> np.ndarray:
         if not any(lo <= c < lo + width for lo in los):
             los.append(int(np.clip(c - radius, 0, n - width)))
     return np.array(los, dtype=np.int64)
-
-
-def windows_at(places: np.ndarray, width: int, n_frames: int) -> np.ndarray:
-    """First frames of windows centred at ``places`` (best first), clipped to the route; a
-    place already inside an earlier window opens none."""
-    radius = width // 2
-    lo: list[int] = []
-    for c in np.asarray(places).tolist():
-        if not any(first <= c < first + width for first in lo):
-            lo.append(int(np.clip(c - radius, 0, n_frames - width)))
-    return np.array(lo, dtype=np.int64)
-
-
-def uniform_windows(lo: np.ndarray, width: int, n_frames: int, n_speeds: int) -> np.ndarray:
-    """``(S, B, W)`` float32 states of windows ``lo`` under the uniform prior over every speed
-    and frame of the route (``1 / (S·N)`` each; a frame in two windows counts once)."""
-    P = np.full((n_speeds, lo.size, width), 1.0 / (n_speeds * n_frames), dtype=np.float32)
-    idx = lo[:, None] + np.arange(width)[None, :]
-    for b in range(1, lo.size):
-        P[:, b, np.isin(idx[b], idx[:b].ravel())] = 0.0
-    return P
