@@ -48,11 +48,16 @@ from service.encoding.sequence import (
     SequenceFilter,
     apply_evidence,
     estimate_at,
-    likelihood,
     mean_evidence,
 )
 from service.encoding.sequence_config import SequenceConfig
-from service.encoding.tracking_windows import best_places, covered, frames_outside
+from service.encoding.tracking_windows import (
+    best_places,
+    covered,
+    frames_outside,
+    recentre,
+    windows_to_keep,
+)
 from service.errors import InvalidInputError
 
 MAX_WINDOWS = 16  # windows while the evidence holds (window_frames // width once widened)
@@ -345,52 +350,20 @@ class DriveTracker:
     def _recentre(self) -> None:
         """Move each window whose peak drifted more than a quarter width from its centre."""
         assert self.P is not None
-        S, B, W = self.P.shape
-        r = self.config.track_radius
-        marg = self.P.sum(axis=0)
-        peaks = marg.argmax(axis=1)
-        for b in range(B):
-            delta = int(peaks[b]) - r
-            new = int(np.clip(self.lo[b] + delta, 0, self.n_frames - W))
-            delta = new - int(self.lo[b])
-            if abs(delta) <= r // 2:
-                continue
-            n_out = max(1, self._n_outside())
-            density = self.outside / (S * n_out)
-            win = self.P[:, b]
-            moved = np.full_like(win, density)
-            if abs(delta) < W:
-                if delta > 0:
-                    moved[:, : W - delta] = win[:, delta:]
-                    gone = float(win[:, :delta].sum(dtype=np.float64))
-                else:
-                    moved[:, -delta:] = win[:, : W + delta]
-                    gone = float(win[:, W + delta :].sum(dtype=np.float64))
-                fresh = abs(delta)
-            else:
-                gone, fresh = float(win.sum(dtype=np.float64)), W
-            self.outside = max(0.0, self.outside + gone - density * S * fresh)
-            self.P[:, b] = moved
-            self.lo[b] = new
+        self.outside = recentre(self.P, self.lo, self.outside, self.config.track_radius,
+                                self.n_frames)  # fmt: skip
 
     def _close_windows(self) -> None:
         """Close windows past probation that are no better than the outside (and the weakest
         beyond :data:`MAX_WINDOWS`); their mass joins the outside."""
         assert self.P is not None
-        S, B, W = self.P.shape
-        if B == 1:
+        if self.P.shape[1] == 1:
             return
         mass = self.P.sum(axis=(0, 2), dtype=np.float64)
-        n_out = max(1, self._n_outside())
-        level = 2.0 * self.outside * W / n_out  # a window's share were it outside
-        best = int(mass.argmax())
-        keep = (mass > level) | (self.age < (WIDE_PROBATION if self.wide else PROBATION))
-        keep[best] = True
+        level = 2.0 * self.outside * self.width / max(1, self._n_outside())  # were it outside
         most = self.max_windows if self.wide else min(MAX_WINDOWS, self.max_windows)
-        if keep.sum() > most:
-            order = np.argsort(-mass)
-            keep[:] = False
-            keep[order[:most]] = True
+        keep = windows_to_keep(mass, self.age, level,
+                               WIDE_PROBATION if self.wide else PROBATION, most)  # fmt: skip
         if keep.all():
             return
         self.outside += float(mass[~keep].sum())

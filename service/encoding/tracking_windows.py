@@ -1,5 +1,6 @@
 """Where a vehicle tracker's windows lie on the route (:mod:`service.encoding.tracking`): the
-frames they cover, the frames they leave outside, and the places a posterior puts windows at.
+frames they cover, the frames they leave outside, the places a posterior puts windows at, and
+how a window follows its belief.
 
 A window is ``width`` consecutive frames from its first frame ``lo``; windows may overlap.
 """
@@ -47,3 +48,46 @@ def best_places(posterior: np.ndarray, width: int, most: int) -> np.ndarray:
         if not any(lo <= c < lo + width for lo in los):
             los.append(int(np.clip(c - radius, 0, n - width)))
     return np.array(los, dtype=np.int64)
+
+
+def recentre(P: np.ndarray, lo: np.ndarray, outside: float, radius: int, n_frames: int) -> float:
+    """Move each window of the states ``P`` ``(S, B, W)`` (first frames ``lo``, updated in
+    place) whose peak drifted more than ``radius // 2`` from its centre; the mass a move drops
+    joins the outside, the frames it newly covers take the outside's density. Returns the
+    outside mass."""
+    S, B, W = P.shape
+    peaks = P.sum(axis=0).argmax(axis=1)
+    for b in range(B):
+        new = int(np.clip(lo[b] + int(peaks[b]) - radius, 0, n_frames - W))
+        delta = new - int(lo[b])
+        if abs(delta) <= radius // 2:
+            continue
+        density = outside / (S * max(1, frames_outside(lo, W, n_frames)))
+        win = P[:, b]
+        moved = np.full_like(win, density)
+        if abs(delta) < W:
+            if delta > 0:
+                moved[:, : W - delta] = win[:, delta:]
+                gone = float(win[:, :delta].sum(dtype=np.float64))
+            else:
+                moved[:, -delta:] = win[:, : W + delta]
+                gone = float(win[:, W + delta :].sum(dtype=np.float64))
+            fresh = abs(delta)
+        else:
+            gone, fresh = float(win.sum(dtype=np.float64)), W
+        outside = max(0.0, outside + gone - density * S * fresh)
+        P[:, b] = moved
+        lo[b] = new
+    return outside
+
+
+def windows_to_keep(mass: np.ndarray, age: np.ndarray, level: float, probation: int,
+                    most: int) -> np.ndarray:  # fmt: skip
+    """Mask of the windows to keep: the best, those holding more than ``level`` and those
+    younger than ``probation`` frames — at most ``most`` of them, the heaviest."""
+    keep = (mass > level) | (age < probation)
+    keep[int(mass.argmax())] = True
+    if keep.sum() > most:
+        keep[:] = False
+        keep[np.argsort(-mass)[:most]] = True
+    return keep

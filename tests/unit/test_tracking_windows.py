@@ -6,7 +6,13 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.encoding.tracking_windows import best_places, covered, frames_outside
+from service.encoding.tracking_windows import (
+    best_places,
+    covered,
+    frames_outside,
+    recentre,
+    windows_to_keep,
+)
 
 
 @settings(max_examples=60, deadline=None)
@@ -40,3 +46,42 @@ def test_a_posterior_with_two_bumps_gets_a_window_at_each() -> None:
     post[2_000], post[7_000] = 0.6, 0.4
     los = best_places(post, 97, 4)
     assert los[0] == 2_000 - 48 and los[1] == 7_000 - 48
+
+
+@settings(max_examples=100, deadline=None)
+@given(n_frames=st.integers(40, 400), n_windows=st.integers(1, 4), seed=st.integers(0, 2**31 - 1))
+def test_recentring_keeps_the_mass_and_the_windows_on_the_route(n_frames: int, n_windows: int,
+                                                                seed: int) -> None:  # fmt: skip
+    rng = np.random.default_rng(seed)
+    radius = 5
+    W = 2 * radius + 1
+    P = rng.random((3, n_windows, W)).astype(np.float32)
+    P /= 2 * P.sum()
+    lo = rng.integers(0, n_frames - W + 1, size=n_windows).astype(np.int64)
+    outside = 0.5
+    before = float(P.sum(dtype=np.float64)) + outside
+    peaks = P.sum(axis=0).argmax(axis=1)
+    lo0 = lo.copy()
+    after = recentre(P, lo, outside, radius, n_frames)
+    assert ((lo >= 0) & (lo <= n_frames - W)).all()
+    assert after >= 0.0
+    assert abs(float(P.sum(dtype=np.float64)) + after - before) < 1e-5
+    for b in range(n_windows):  # a window whose peak stayed within radius // 2 did not move
+        if abs(int(peaks[b]) - radius) <= radius // 2:
+            assert lo[b] == lo0[b]
+
+
+@settings(max_examples=100, deadline=None)
+@given(masses=st.lists(st.floats(0.0, 1.0), min_size=1, max_size=12), most=st.integers(1, 12),
+       level=st.floats(0.0, 1.0), seed=st.integers(0, 2**31 - 1))  # fmt: skip
+def test_the_best_window_is_kept_and_at_most_most(masses: list[float], most: int, level: float,
+                                                  seed: int) -> None:  # fmt: skip
+    mass = np.array(masses)
+    age = np.random.default_rng(seed).integers(0, 20, size=mass.size)
+    keep = windows_to_keep(mass, age, level, 8, most)
+    assert keep[int(mass.argmax())]
+    assert 1 <= keep.sum() <= most
+    expect = (mass > level) | (age < 8)
+    expect[int(mass.argmax())] = True
+    if expect.sum() <= most:  # within the limit: exactly the rule
+        np.testing.assert_array_equal(keep, expect)
