@@ -29,16 +29,22 @@ def bcss(X: np.ndarray, labels: np.ndarray, n_classes: int | None = None) -> np.
     n_classes = int(labels.max()) + 1 if n_classes is None else n_classes
     counts = np.bincount(labels, minlength=n_classes).astype(np.float64)
     sums = np.zeros((n_classes, X.shape[1]), dtype=np.float64)
-    _group_sums(X, labels, sums)
-    grand_mean = sums.sum(axis=0) / X.shape[0]
+    add_group_sums(X, labels, sums)
+    return bcss_from_sums(sums, counts, X.shape[0])
+
+
+def bcss_from_sums(sums: np.ndarray, counts: np.ndarray, n_rows: int) -> np.ndarray:
+    """:func:`bcss` from the classes' row sums ``(τ, d)`` and counts ``(τ,)`` of ``n_rows``
+    rows (sums that were accumulated block by block over a long route)."""
+    grand_mean = sums.sum(axis=0) / n_rows
     present = counts > 0
     means = sums[present] / counts[present, None]
     diff = means - grand_mean[None, :]
-    return np.einsum("c,cd,cd->d", counts[present], diff, diff)
+    return np.einsum("c,cd,cd->d", counts[present], diff, diff)  # type: ignore[no-any-return]
 
 
-def _group_sums(X: np.ndarray, labels: np.ndarray, out: np.ndarray) -> None:
-    """Row sums per label via a sparse one-hot product (fast for large ``n``)."""
+def add_group_sums(X: np.ndarray, labels: np.ndarray, out: np.ndarray) -> None:
+    """Add the row sums per label to ``out`` via a sparse one-hot product (fast for large ``n``)."""
     from scipy import sparse
 
     onehot = sparse.csr_matrix(

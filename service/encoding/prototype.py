@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from service.encoding.patterns import add_group_sums
 from service.encoding.progress import StepFn
 from service.encoding.quantization import QuantizedLinear
 
@@ -37,13 +38,16 @@ def fit_prototypes(
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """``(W, b)`` for labels ``y`` in ``[0, n)`` (every class present)."""
     del C, seed, threads
-    from scipy import sparse
+    sums = np.zeros((n, X.shape[1]), dtype=np.float64)
+    add_group_sums(X, y, sums)
+    return unit_rows(sums)[0], np.zeros(n)
 
-    onehot = sparse.csr_matrix((np.ones(y.shape[0]), (y, np.arange(y.shape[0]))),
-                               shape=(n, y.shape[0]))  # fmt: skip
-    sums = np.asarray(onehot @ X, dtype=np.float64)
-    norms = np.sqrt(np.einsum("ij,ij->i", sums, sums))[:, None]
-    return sums / np.maximum(norms, _MIN_NORM), np.zeros(n)
+
+def unit_rows(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Class sums ``(τ, d)`` as unit rows (a prototype: the direction of its class mean) and
+    their norms (a class whose rows cancel out gets a zero row)."""
+    norms = np.sqrt(np.einsum("ij,ij->i", sums, sums))
+    return sums / np.maximum(norms, _MIN_NORM)[:, None], norms
 
 
 _STREAM_ROWS = 16_384  # route rows projected and quantised at a time

@@ -23,9 +23,9 @@ import numpy as np
 from service.encoding import appending
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.front_end import FrontEnd
-from service.encoding.patterns import select_columns
+from service.encoding.patterns import add_group_sums, bcss_from_sums, select_columns
 from service.encoding.progress import ProgressFn, Steps
-from service.encoding.prototype import _MIN_NORM, stream_frame_prototypes
+from service.encoding.prototype import stream_frame_prototypes, unit_rows
 from service.encoding.quantization import QuantizedLinear
 
 STREAM_ROWS = 16_384  # route rows projected and accumulated at a time
@@ -52,8 +52,6 @@ def class_sums_streamed(
 ) -> list[np.ndarray]:  # fmt: skip
     """``(τ_j, d')`` float64 sums of the transformed rows of every residue class
     ``i mod τ_j``, accumulated over blocks of :data:`STREAM_ROWS` rows of ``X``."""
-    from scipy import sparse
-
     n = X.shape[0]
     sums: list[np.ndarray] | None = None
     for s in range(0, n, STREAM_ROWS):
@@ -62,22 +60,11 @@ def class_sums_streamed(
         if sums is None:
             sums = [np.zeros((tau, Z.shape[1])) for tau in periods]
         for j, tau in enumerate(periods):
-            onehot = sparse.csr_matrix((np.ones(rows.size), (rows % tau, rows - s)),
-                                       shape=(tau, rows.size))  # fmt: skip
-            sums[j] += onehot @ Z
+            add_group_sums(Z, rows % tau, sums[j])
         if progress is not None:
             progress(min(n, s + STREAM_ROWS), n)
     assert sums is not None
     return sums
-
-
-def _between_class_squares(sums: np.ndarray, counts: np.ndarray, n: int) -> np.ndarray:
-    """:func:`service.encoding.patterns.bcss` from class sums and counts."""
-    grand_mean = sums.sum(axis=0) / n
-    present = counts > 0
-    means = sums[present] / counts[present, None]
-    diff = means - grand_mean[None, :]
-    return np.einsum("c,cd,cd->d", counts[present], diff, diff)  # type: ignore[no-any-return]
 
 
 def fit_class_prototypes(model: Any, X: np.ndarray, front: FrontEnd,
@@ -93,11 +80,9 @@ def fit_class_prototypes(model: Any, X: np.ndarray, front: FrontEnd,
     model.digits_, model.tallies_ = [], []
     for j, (tau, S) in enumerate(zip(model.periods_, sums, strict=True)):
         counts = np.bincount(np.arange(n, dtype=np.int64) % tau, minlength=tau)
-        pattern = select_columns(_between_class_squares(S, counts.astype(np.float64), n),
+        pattern = select_columns(bcss_from_sums(S, counts.astype(np.float64), n),
                                  float(model.rho), model.gamma)  # fmt: skip
-        sel = S[:, pattern.columns]
-        mass = np.sqrt(np.einsum("ij,ij->i", sel, sel))
-        W = sel / np.maximum(mass, _MIN_NORM)[:, None]
+        W, mass = unit_rows(S[:, pattern.columns])
         linear = QuantizedLinear.from_dense(W, np.zeros(tau), model.dtype)
         model.digits_.append(DigitClassifier(pattern.columns, linear, pattern,
                                              model._temperature()))  # fmt: skip
