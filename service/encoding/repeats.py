@@ -37,6 +37,7 @@ differ more (30 % descriptor noise) is driven out of its stop: off by default.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,18 @@ class RepeatDetector:
 
     def reset(self) -> None:
         self._previous = None
+
+    def measure(
+        self, odometry: float | None, scores: Callable[[], tuple[np.ndarray, np.ndarray]]
+    ) -> Repeat:
+        """The repetition of a query frame, or :data:`NEW` without measuring it when the test
+        is off or the frame comes with odometry (the measured displacement moves every state:
+        the speed belief does not move it). ``scores()`` gives the query's scores over the
+        route's sample frames and their successors (:meth:`observe`); it is called only when
+        the test runs, since scoring the successors costs a tracker extra frames."""
+        if self.config.repeat_novelty <= 0 or odometry is not None:
+            return NEW
+        return self.observe(*scores())
 
     def observe(self, sample_scores: np.ndarray, next_scores: np.ndarray) -> Repeat:
         """The repetition of a query whose scores over the route's sample frames are

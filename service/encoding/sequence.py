@@ -159,14 +159,15 @@ class SequenceFilter:
         ``repeat``: the frame's repetition of the previous one when the caller measured it
         (:mod:`service.encoding.repeats`), else the filter measures it."""
         L = check_scores(frame_log_scores, self.n_frames)
-        if repeat is None and (self.config.repeat_novelty <= 0 or odometry is not None):
-            repeat = NEW  # odometry measures the motion: the speed belief does not move it
-        elif repeat is None:
-            from service.encoding.drive_scoring import route_sample
-
-            sample = route_sample(self.n_frames)
-            repeat = self._repeats.observe(L[sample], L[successors(sample, self.n_frames)])
+        if repeat is None:
+            repeat = self._repeats.measure(odometry, lambda: self._sample_scores(L))
         return self.update_likelihood(likelihood(L, self.config), odometry, repeat)
+
+    def _sample_scores(self, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from service.encoding.drive_scoring import route_sample
+
+        sample = route_sample(self.n_frames)
+        return L[sample], L[successors(sample, self.n_frames)]
 
     def update_likelihood(
         self, lik: np.ndarray, odometry: float | None = None, repeat: Repeat = NEW

@@ -41,7 +41,7 @@ import numpy as np
 
 from service.encoding.drive_scoring import route_sample
 from service.encoding.motion import MotionModel
-from service.encoding.repeats import NEW, Repeat, RepeatDetector, successors
+from service.encoding.repeats import Repeat, RepeatDetector, successors
 from service.encoding.sequence import (
     _MIN_LOG_LIKELIHOOD,
     SequenceEstimate,
@@ -180,10 +180,9 @@ class DriveTracker:
         last frame when measured; return the estimate."""
         self.frames += 1
         recent = list(self.recent)
-        repeat = NEW  # the repeat test costs the sample frames' successors: only when on
-        if self.config.repeat_novelty > 0 and odometry is None:  # odometry measures the motion
-            repeat = self.repeats.observe(np.asarray(self.scorer.sample_scores(prep)),
-                                          np.asarray(self.scorer.frames(prep, self.next_frames)))
+        repeat = self.repeats.measure(odometry, lambda: (
+            np.asarray(self.scorer.sample_scores(prep)),
+            np.asarray(self.scorer.frames(prep, self.next_frames))))  # fmt: skip
         self.recent.append((prep, odometry, repeat))
         budget = float(self.config.whole_route_budget)
         self.credit = min(self.credit + budget, max(budget, BANKED * self.whole_cost))
