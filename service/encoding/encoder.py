@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from service.encoding import appending
+from service.encoding import appending, encoder_storage
 from service.encoding.base import Localization, PlaceRecognizer
-from service.encoding.conditions import conditions_from_arrays, conditions_to_arrays, fitted_conditions
+from service.encoding.conditions import fitted_conditions
 from service.encoding.decoding import DECODE_MODES, decode
 from service.encoding.digit_classifier import DigitClassifier
 from service.encoding.footprint import Footprint
@@ -360,23 +360,7 @@ class PhaseEncoder(PlaceRecognizer):
 
     def _to_arrays(self, prefix: str = "") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         self._check_fitted()
-        arrays: dict[str, np.ndarray] = {}
-        width = self._digit_width()
-        for j, dc in enumerate(self.digits_):
-            arrays.update(dc.to_arrays(f"{prefix}enc.{j}", width))
-        if self.normalizer_ is not None:
-            arrays.update(self.normalizer_.to_arrays(f"{prefix}norm"))
-        if getattr(self, "ivf_", None) is not None:
-            arrays.update(self.ivf_.to_arrays(f"{prefix}ivf"))
-        meta = {
-            "n_frames": self.n_frames_,
-            "n_features": self.n_features_in_,
-            "periods": list(self.periods_),
-            "n_traversals": self.n_traversals_,
-        }
-        if keys := conditions_to_arrays(getattr(self, "conditions_", None) or {}, arrays, prefix):
-            meta["conditions"] = keys
-        return arrays, meta
+        return encoder_storage.to_arrays(self, self._digit_width(), prefix)
 
     @classmethod
     def _from_arrays(
@@ -387,26 +371,7 @@ class PhaseEncoder(PlaceRecognizer):
         prefix: str = "",
     ) -> PhaseEncoder:
         model = cls(**params)
-        d = int(meta["n_features"])
-        n = int(meta["n_frames"])
-        if model.code == "residue":
-            model.periods_ = validate_residue_periods(meta["periods"], n)
-        else:
-            model.periods_ = validate_periods(meta["periods"], n)
-        model.normalizer_ = FrontEnd.from_arrays(arrays, f"{prefix}norm")
-        width = d if model.normalizer_ is None or model.normalizer_.n_outputs is None else int(
-            model.normalizer_.n_outputs)  # fmt: skip
-        model.digits_ = [
-            DigitClassifier.from_arrays(arrays, f"{prefix}enc.{j}", width)
-            for j in range(len(model.periods_))
-        ]
-        model.ivf_ = InvertedFile.from_arrays(arrays, f"{prefix}ivf", n)
-        tallies = [appending.ClassTally.from_arrays(arrays, f"{prefix}enc.{j}")
-                   for j in range(len(model.periods_))]  # fmt: skip
-        model.tallies_ = tallies if all(t is not None for t in tallies) else None
-        model.whitening_ = appending.ConditionWhitening.from_arrays(arrays, f"{prefix}whiten")
-        model.conditions_ = conditions_from_arrays(arrays, meta.get("conditions"), prefix)
-        model._set_fitted(n, d, int(meta.get("n_traversals", 1)))
+        encoder_storage.restore(model, arrays, meta, prefix)
         return model
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
