@@ -15,7 +15,10 @@ then reads ahead up to ``STREAM_READ_AHEAD`` frames (at most ``STREAM_READ_AHEAD
 messages) and answers them in order. A stream holds a lease on the server-wide stream budget
 (:mod:`service.core.stream_budget`: ``GRIDPLACE_MAX_STREAMS`` streams, their vehicles and
 bytes); a stream beyond it is refused with ``RESOURCE_EXHAUSTED``, and a closed stream's
-vehicles are dropped and their memory given back.
+vehicles are dropped and their memory given back. An accepted stream's initial metadata
+(``gridplace-stream: open``) comes at once, before any frame: a client that awaits it before
+sending learns of a refusal from its status, not from a write that raced the server's close
+(which gRPC's Python client reports as ``INTERNAL``).
 Unary errors abort the call with the status of the error's class (``GridplaceError.grpc_status``)
 and its code in the ``gridplace-error`` trailing metadata; in ``LocalizeStream`` a bad message
 is answered with ``error`` set and the stream goes on.
@@ -44,6 +47,7 @@ from service.grpc.gen import localization_pb2 as pb
 from service.grpc.gen import localization_pb2_grpc as pb_grpc
 from service.settings import Settings
 
+STREAM_OPEN = (("gridplace-stream", "open"),)  # an accepted stream's initial metadata
 log = logging.getLogger("gridplace.grpc")
 T = TypeVar("T")
 
@@ -225,6 +229,11 @@ class LocalizationServicer(pb_grpc.LocalizationServicer):
             lease = budget.open()
         except GridplaceError as exc:
             await _abort(context, exc)
+        try:  # the stream is accepted: a client that awaits the initial metadata sends then
+            await context.send_initial_metadata(STREAM_OPEN)
+        except BaseException:
+            lease.close()
+            raise
         return FleetStream(self.service, self.sequence, adaptation=settings.adaptation(),
                            adapt_by_default=settings.drive_adaptation, lease=lease,
                            condition_frames=settings.condition_frames)  # fmt: skip

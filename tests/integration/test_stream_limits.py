@@ -120,23 +120,26 @@ def test_streams_beyond_the_limit_are_refused_and_a_closed_one_frees_its_place(s
             held = [_Open(stub, _frames(server.query, f"s{i}", 1)) for i in range(MAX_STREAMS)]
             for s in held:
                 assert not (await s.answers())[0].HasField("error")
-            extra = stub.LocalizeStream(_one(server.query))
+            extra = _Gated(stub, server.query)
+            assert not await extra.accepted()  # refused before it sends a frame
             with pytest.raises(grpc.aio.AioRpcError) as refused:
-                await extra.read()
+                await extra.call.read()
             assert refused.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
             assert "GRIDPLACE_MAX_STREAMS=3" in (refused.value.details() or "")
             assert ("gridplace-error", "capacity_exhausted") in tuple(refused.value.trailing_metadata() or ())
             await held[0].close()
             deadline = time.monotonic() + 5
             while True:  # the closed stream's place is given back as its handler ends
-                again = stub.LocalizeStream(_one(server.query))
-                try:
-                    assert not (await again.read()).HasField("error")
+                again = _Gated(stub, server.query)
+                if await again.accepted():
                     break
-                except grpc.aio.AioRpcError as exc:
-                    assert exc.code() == grpc.StatusCode.RESOURCE_EXHAUSTED and time.monotonic() < deadline
-                    await asyncio.sleep(0.05)
-            while await again.read() is not grpc.aio.EOF:  # its one frame sent, it ends
+                with pytest.raises(grpc.aio.AioRpcError) as exc:
+                    await again.call.read()
+                assert exc.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+                assert time.monotonic() < deadline
+                await asyncio.sleep(0.05)
+            assert not (await again.call.read()).HasField("error")
+            while await again.call.read() is not grpc.aio.EOF:  # its one frame sent, it ends
                 pass
             for s in held[1:]:
                 await s.close()
@@ -144,9 +147,26 @@ def test_streams_beyond_the_limit_are_refused_and_a_closed_one_frees_its_place(s
     asyncio.run(run())
 
 
-async def _one(Q: np.ndarray) -> AsyncIterator[pb.StreamRequest]:
-    for f in _frames(Q, "lone", 1):
-        yield f
+class _Gated:
+    """A one-frame stream that sends its frame only once the server accepted the stream (its
+    initial metadata came), as a careful client does: a frame written while the server
+    refuses the stream races its close, which gRPC's Python client reports as INTERNAL."""
+
+    def __init__(self, stub: pb_grpc.LocalizationStub, Q: np.ndarray) -> None:
+        self.frames, self.decided, self.open = _frames(Q, "lone", 1), asyncio.Event(), False
+        self.call = stub.LocalizeStream(self._feed())
+
+    async def _feed(self) -> AsyncIterator[pb.StreamRequest]:
+        await self.decided.wait()
+        if self.open:
+            for f in self.frames:
+                yield f
+
+    async def accepted(self) -> bool:
+        metadata = await self.call.initial_metadata()
+        self.open = ("gridplace-stream", "open") in tuple(metadata or ())
+        self.decided.set()
+        return self.open
 
 
 def test_vehicle_state_is_bounded_server_wide_and_given_back_when_streams_close(server: Server) -> None:
