@@ -205,12 +205,12 @@ def test_a_vehicle_started_at_a_known_place_is_tracked_from_its_first_frame() ->
 
 
 def _kidnapped_on_a_long_route(
-    budget: int,
+    budget: int, seed: int = 3
 ) -> tuple[DriveTracker, np.ndarray, np.ndarray, np.ndarray]:
-    """A known start on a 20,000-frame route (``S·N`` = 320,000 state updates a whole-route
-    frame, past the default budget), moved at t = 200; the tracker's estimates and modes."""
+    """A known start on a 20,000-frame route (``S·N`` state updates a whole-route frame, past
+    the default budget), moved at t = 200; the tracker's estimates and modes."""
     truth = np.concatenate([np.arange(2000, 2200), np.arange(15000, 15300)])
-    S = bumps(truth, n=20_000, noise=0.5, seed=3)
+    S = bumps(truth, n=20_000, noise=0.5, seed=seed)
     tracker = DriveTracker(MatrixScorer(S), SequenceConfig(whole_route_budget=budget))
     tracker.start_at(2000)
     est, modes = [], []
@@ -229,11 +229,21 @@ def test_on_a_long_route_weak_evidence_widens_within_the_whole_route_budget(budg
     if budget == 1:
         assert (modes == "whole").sum() == 0
     assert within(est[:200], truth[:200]).all()
-    S = bumps(truth, n=20_000, noise=0.5, seed=3)
-    whole = filter_sequence(S, SequenceConfig(tracking=False))
-    after = _recovered_after(within(est[200:], truth[200:]))
-    # the widened windows find the vehicle about as soon as the whole route's filter does
-    assert after <= 1.25 * _recovered_after(within(whole.index[200:], truth[200:])), after
+
+
+def test_on_a_long_route_widened_windows_find_a_moved_vehicle_about_as_soon_as_the_whole_route() -> None:
+    """Frames until a vehicle moved on a long route is found again and kept, over four drives
+    (one drive's figure varies by ± 30 % with the noise): the tracker within the default budget
+    against the whole route's filter."""
+    tracked, whole = [], []
+    for seed in (3, 4, 5, 6):
+        _, est, _, truth = _kidnapped_on_a_long_route(65_536, seed)
+        S = bumps(truth, n=20_000, noise=0.5, seed=seed)
+        full = filter_sequence(S, SequenceConfig(tracking=False)).index
+        tracked.append(_recovered_after(within(est[200:], truth[200:])))
+        whole.append(_recovered_after(within(full[200:], truth[200:])))
+    assert sum(tracked) <= 1.25 * sum(whole), (tracked, whole)
+    assert all(t <= 1.5 * w for t, w in zip(tracked, whole, strict=True)), (tracked, whole)
 
 
 def test_a_short_route_goes_back_to_the_whole_route_on_weak_evidence() -> None:
