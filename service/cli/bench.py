@@ -7,6 +7,9 @@ from typing import Annotated
 
 import typer
 
+from service.cli.errors import cli_errors
+from service.cli.paths import output_file, writable_dir
+
 app = typer.Typer(help="Benchmarks (figures printed and written as JSON).", no_args_is_help=True)
 
 
@@ -100,6 +103,7 @@ def bench_grpc(
 
 
 @app.command("scale")
+@cli_errors
 def bench_scale(
     sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "100000,1000000",
     n_features: Annotated[int, typer.Option("--d", help="descriptor size d")] = 512,
@@ -127,6 +131,8 @@ def bench_scale(
 ) -> None:
     """Train and serve SYNTHETIC maps up to 1M frames: time, peak RSS, artifact, load, latency,
     precision, beside exact NN (and for the default preset its flat scan and FAISS)."""
+    work_dir = writable_dir(work_dir, "--work-dir")
+    out = output_file(out, "--out")
     if preset in ("paper", "ridge"):
         from service.bench.scale_bench import run_scale_bench
 
@@ -162,6 +168,7 @@ def bench_scale_real(
 
 
 @app.command("growth")
+@cli_errors
 def bench_growth(
     sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
     n_features: Annotated[int, typer.Option("--d", help="descriptor size d")] = 512,
@@ -178,6 +185,8 @@ def bench_growth(
 ) -> None:
     """Storage and precision against N up to 1M SYNTHETIC frames for fixed settings and a fixed
     precision target, beside exact NN and PQ, with both power-law fits."""
+    work_dir = writable_dir(work_dir, "--work-dir")
+    out = output_file(out, "--out")
     from service.bench.growth_bench import run_growth_bench
 
     run_growth_bench([int(s) for s in sizes.split(",")], n_features, region_length, query_noise,

@@ -11,6 +11,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from service.cli.errors import cli_errors
+from service.cli.paths import output_file, writable_dir
+
 if TYPE_CHECKING:
     from service.bench.drive_fixed_precision import FixedPrecisionOptions
 
@@ -63,6 +66,7 @@ def _fixed(opts: FixedPrecisionOptions, work_dir: Path | None, out: Path) -> Non
     console.print(f"wrote {out}")
 
 
+@cli_errors
 def bench_drive_scaling(
     sizes: Annotated[str, typer.Option(help="route lengths N, comma-separated")] = "10000,100000,1000000",
     n_features: Annotated[int, typer.Option(help="descriptor size d of the SYNTHETIC route", min=8)] = 128,
@@ -92,6 +96,8 @@ def bench_drive_scaling(
     from service.bench.drive_fixed_precision import FixedPrecisionOptions
     from service.bench.drive_scaling import ScalingOptions, run_drive_scaling
 
+    work_dir = writable_dir(work_dir, "--work-dir")
+    out = output_file(out, "--out")
     if fixed_precision is not None:
         fixed = FixedPrecisionOptions(fixed_precision, _sizes(sizes), n_features, query_noise,
                                       drives, drive_length, preset, seed=0,
