@@ -13,6 +13,7 @@ import typer
 from rich.console import Console
 
 from service.cli.errors import cli_errors
+from service.cli.paths import output_file
 
 console = Console() if sys.stdout.isatty() else Console(width=180)  # logs keep whole rows
 
@@ -93,6 +94,8 @@ def bench_drive(
     from service.cli.model_commands import sequence_config
     from service.errors import InvalidParameterError
 
+    if markdown is not None:
+        markdown = output_file(markdown, "--markdown")
     if report_from is not None:
         from service.errors import InvalidInputError
 
@@ -122,14 +125,13 @@ def bench_drive(
     chosen = pick_methods(methods)
     config = sequence_config(filter_params)
     tuning_grid = parse_grid(grid)
-    out = out or _default_out()
+    out = output_file(out or _default_out(), "--out")
     ds = load_route(dataset, reference, query, ground_truth, synthetic, patch, name, extractor,
                     out.parent / "extracted")  # fmt: skip
     with console.status("starting") as status:
         report = run_drive_bench(ds, chosen, settings, config, tune, tuning_grid,
                                  progress=lambda m: status.update(m),
                                  argv=["gridplace", *sys.argv[1:]])  # fmt: skip
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     tmp.write_text(json.dumps(report, indent=2))
     tmp.replace(out)
@@ -144,7 +146,6 @@ def _outputs(report: dict[str, Any], markdown: Path | None, figure: Path) -> Non
 
     print_report(report, console)
     if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(to_markdown(report))
         console.print(f"wrote {markdown}")
     png = plot(report, figure)

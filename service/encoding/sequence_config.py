@@ -13,11 +13,11 @@ grid over ``robust``, ``drive`` and exact NN on A's constant-speed, short, varia
 0.125 – 0.5, with ``speed_change`` and ``stop_probability`` again; the finalists again on twice
 as many new drives): speeds 0.5 – 2.75 by 0.25 had the best mean both times, 3.2 and 4.5 points
 above the former 0.5 – 2 (mostly on the ``traffic`` drives, which cruise at up to 3 frames per
-query frame), at 22 states instead of 16; then, with that grid, emission scale 0.07 – 0.25 (and speed change
-0.03 / 0.07, stop probability 0.02): 0.12 and 0.14 tied on the mean over ``robust`` and
-``drive`` in both runs, 0.12 raising every method's mean against 0.1 where 0.14 cost ``drive``
-3 points of its whole drive (exact NN alone gains up to 0.25). The speed range is a prior on
-the vehicle: widen it for a vehicle that is faster relative to the map.
+query frame), at 22 states instead of 16; then, with that grid, emission scale 0.07 – 0.25
+(and speed change 0.03 / 0.07, stop probability 0.02): 0.12 and 0.14 tied on the mean over
+``robust`` and ``drive`` in both runs, 0.12 raising every method's mean against 0.1 where 0.14
+cost ``drive`` 3 points of its whole drive (exact NN alone gains up to 0.25). The speed range
+is a prior on the vehicle: widen it for a vehicle that is faster relative to the map.
 ``repeat_*`` and ``move_novelty`` read a frame that repeats the previous view as a stop's
 (:mod:`service.encoding.repeats`); off by default (``repeat_novelty=0``), as measured there. ``odometry_*`` apply to frames that come with a displacement (path integration);
 ``track*``, ``check_every``, ``window_frames`` and ``whole_route_budget`` to the windowed

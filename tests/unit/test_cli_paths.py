@@ -30,3 +30,10 @@ def test_missing_folders_are_made(tmp_path: Path) -> None:
     assert (tmp_path / "a" / "b").is_dir() and writable_dir(None, "--work-dir") is None
     out = output_file(tmp_path / "c" / "d.json", "--out")
     assert out.parent.is_dir() and not out.exists()
+
+
+@pytest.mark.parametrize("option", ["--out", "--markdown"])
+def test_bench_drive_refuses_a_folder_as_its_report(tmp_path: Path, option: str) -> None:
+    got = CliRunner().invoke(app, ["bench", "drive", "--synthetic", "2000", option, str(tmp_path)])
+    assert got.exit_code == 2, got.output
+    assert "a folder, not a file" in " ".join(got.output.split()) and option in got.output
