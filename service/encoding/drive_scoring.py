@@ -124,6 +124,10 @@ class CodeScorer:
             np.searchsorted(lab[o], np.arange(dg.n_classes + 1))
             for lab, o, dg in zip(self.labels, self.order, self.digits, strict=True)
         ]
+        # the sample's classes per digit, their rows gathered once: a query's spread over the
+        # route is one small contiguous product per digit, not a gather across the whole code
+        self._sample = [_Rows.of(dg, lab[self.sample])
+                        for dg, lab in zip(self.digits, self.labels, strict=True)]  # fmt: skip
 
     @property
     def check_cost(self) -> int:
@@ -141,12 +145,8 @@ class CodeScorer:
         if full is not None:
             return full[cls]  # type: ignore[no-any-return]
         dg = self.digits[j]
-        if dg.rowscale is not None:  # int8 weights with a scale per class
-            out = (dg.weight[cls].astype(np.float32) @ prep.z[j]) * dg.rowscale[cls]
-        else:
-            out = dg.weight[cls] @ prep.z[j]
-        out = out.astype(np.float64) + dg.bias[cls]
-        return out * dg.beta if dg.beta != 1.0 else out  # type: ignore[no-any-return]
+        return _class_scores(dg, dg.weight[cls], None if dg.rowscale is None else dg.rowscale[cls],
+                             dg.bias[cls], prep.z[j])  # fmt: skip
 
     def _all(self, prep: _Prepared, j: int) -> np.ndarray:
         full = prep.full[j]
@@ -176,7 +176,19 @@ class CodeScorer:
         return out  # type: ignore[no-any-return]
 
     def sample_scores(self, prep: Any) -> np.ndarray:
-        return self.frames(prep, self.sample)
+        """Scores of the route's sample frames (:func:`route_sample`), computed once per query
+        (read-only: a tracker asks for them several times a frame)."""
+        if prep.sample is None:
+            out = np.zeros(self.sample.size)
+            for j, rows in enumerate(self._sample):
+                full = prep.full[j]
+                if full is not None:
+                    out += full[rows.classes[rows.inverse]]
+                else:
+                    out += rows.scores(self.digits[j], prep.z[j])[rows.inverse]
+            out.flags.writeable = False
+            prep.sample = out
+        return prep.sample
 
     def candidates(self, prep: Any, m: int) -> np.ndarray:
         pools = []
@@ -196,13 +208,50 @@ class CodeScorer:
 
 
 class _Prepared:
-    """One query's projected columns per digit, and each digit's class scores once needed."""
+    """One query's projected columns per digit, each digit's class scores once needed, and
+    the route sample's scores once asked for."""
 
-    __slots__ = ("z", "full")
+    __slots__ = ("full", "sample", "z")
 
     def __init__(self, z: list[np.ndarray]) -> None:
         self.z = z
         self.full: list[np.ndarray | None] = [None] * len(z)
+        self.sample: np.ndarray | None = None
+
+
+def _class_scores(dg: Any, weight: np.ndarray, rowscale: np.ndarray | None, bias: np.ndarray,
+                  z: np.ndarray) -> np.ndarray:  # fmt: skip
+    """``β·(w_c·z + b_c)`` of the classes whose rows are ``weight`` (float64)."""
+    if rowscale is not None:  # int8 weights with a scale per class
+        out = (weight.astype(np.float32) @ z) * rowscale
+    else:
+        out = weight @ z
+    out = out.astype(np.float64) + bias
+    return out * dg.beta if dg.beta != 1.0 else out  # type: ignore[no-any-return]
+
+
+class _Rows:
+    """A fixed set of one digit's classes (those of a fixed set of frames) with their rows
+    gathered into one contiguous block."""
+
+    __slots__ = ("bias", "classes", "inverse", "rowscale", "weight")
+
+    def __init__(self, classes: np.ndarray, inverse: np.ndarray, weight: np.ndarray,
+                 rowscale: np.ndarray | None, bias: np.ndarray) -> None:  # fmt: skip
+        self.classes, self.inverse = classes, inverse
+        self.weight, self.rowscale, self.bias = weight, rowscale, bias
+
+    @classmethod
+    def of(cls, dg: Any, labels: np.ndarray) -> _Rows:
+        """The rows of the classes ``labels`` (one per frame) of digit block ``dg``."""
+        classes, inverse = np.unique(labels, return_inverse=True)
+        scale = None if dg.rowscale is None else dg.rowscale[classes]
+        return cls(classes, inverse, np.ascontiguousarray(dg.weight[classes]), scale,
+                   dg.bias[classes])  # fmt: skip
+
+    def scores(self, dg: Any, z: np.ndarray) -> np.ndarray:
+        """The classes' scores for one query's projected columns ``z``."""
+        return _class_scores(dg, self.weight, self.rowscale, self.bias, z)
 
 
 def drive_scorer(model: Any) -> RowScorer | CodeScorer:

@@ -192,6 +192,22 @@ def test_the_code_scorer_agrees_with_the_models_frame_scores() -> None:
     assert (np.abs(tracked.index - whole.index) <= 2).mean() > 0.95
 
 
+def test_the_code_scorers_route_sample_is_scored_once_per_query_from_its_own_rows() -> None:
+    route = smooth_route(600, 32, seed=4)
+    model = PhaseEncoder(trainer="prototype", code="residue", n_patterns=2, code_ratio=0.2).fit(
+        route.reference
+    )
+    scorer = drive_scorer(model)
+    assert isinstance(scorer, CodeScorer)
+    sample = route_sample(600)
+    for prep, again in zip(scorer.prepare_many(route.query[:10]),
+                           scorer.prepare_many(route.query[:10]), strict=True):  # fmt: skip
+        first = scorer.sample_scores(prep)  # before any full row: from the sample's own rows
+        assert scorer.sample_scores(prep) is first and not first.flags.writeable
+        np.testing.assert_allclose(first, scorer.frames(again, sample), atol=1e-9)
+        np.testing.assert_allclose(first, scorer.full(again)[sample], atol=1e-4)
+
+
 def test_a_vehicle_started_at_a_known_place_is_tracked_from_its_first_frame() -> None:
     truth = np.arange(900, 1300)
     S = bumps(truth, noise=0.8, seed=9)  # weak evidence: from nowhere it takes a while
