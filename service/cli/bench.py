@@ -14,6 +14,7 @@ app = typer.Typer(help="Benchmarks (figures printed and written as JSON).", no_a
 
 
 @app.command("train")
+@cli_errors
 def bench_train(
     n_frames: Annotated[int, typer.Option(help="route length N")] = 10_000,
     n_features: Annotated[int, typer.Option(help="descriptor size d")] = 4096,
@@ -23,12 +24,14 @@ def bench_train(
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-train.json"),
 ) -> None:
     """Training time, precision@5, query time and footprint per trainer, in one run."""
+    out = output_file(out, "--out")
     from service.bench.train_bench import run_train_bench
 
     run_train_bench(n_frames, n_features, patterns, rho, trainers.split(","), out)
 
 
 @app.command("workers")
+@cli_errors
 def bench_workers(
     n_frames: Annotated[int, typer.Option(help="route length N (Nordland when present)")] = 3576,
     n_features: Annotated[int, typer.Option(help="d of the SYNTHETIC route without Nordland")] = 2048,
@@ -40,12 +43,14 @@ def bench_workers(
     out: Annotated[Path, typer.Option(help="JSON output")] = Path("bench-workers.json"),
 ) -> None:
     """A chunked route trained by 1 and by N RQ workers on a PostgreSQL registry (one run)."""
+    out = output_file(out, "--out")
     from service.bench.workers_bench import run_workers_bench
 
     run_workers_bench(n_frames, n_features, chunks, workers, trainer, registry_url, out)
 
 
 @app.command("serve")
+@cli_errors
 def bench_serve(
     n_frames: Annotated[int, typer.Option(help="route length N of the served map")] = 10_000,
     single: Annotated[int, typer.Option(help="single-descriptor requests per form")] = 500,
@@ -62,6 +67,7 @@ def bench_serve(
 ) -> None:
     """/localize p50/p99 latency and batch throughput of a real server on loopback (10k map),
     micro-batched and not, beside the in-process fast path and reference decoder."""
+    out = output_file(out, "--out")
     from service.bench.serve_bench import run_serve_bench
 
     params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns),
@@ -70,6 +76,7 @@ def bench_serve(
 
 
 @app.command("grpc")
+@cli_errors
 def bench_grpc(
     n_frames: Annotated[int, typer.Option(help="route length N of the served maps")] = 10_000,
     frames: Annotated[int, typer.Option(help="frames sent, on 1 stream and split over --streams")] = 4000,
@@ -94,6 +101,7 @@ def bench_grpc(
 ) -> None:
     """gRPC frames/s on 1 and N streams beside REST, micro-batched and not, and what sequence
     filtering does to precision."""
+    out = output_file(out, "--out")
     from service.bench.grpc_bench import run_grpc_bench
 
     params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns)}
@@ -133,6 +141,7 @@ def bench_scale(
     precision, beside exact NN (and for the default preset its flat scan and FAISS)."""
     work_dir = writable_dir(work_dir, "--work-dir")
     out = output_file(out, "--out")
+    figure = None if figure is None else output_file(figure, "--figure")
     if preset in ("paper", "ridge"):
         from service.bench.scale_bench import run_scale_bench
 
@@ -150,6 +159,7 @@ def bench_scale(
 
 
 @app.command("scale-real")
+@cli_errors
 def bench_scale_real(
     reference: Annotated[Path, typer.Option(help="reference descriptors (.npy, N × d)")],
     query: Annotated[Path, typer.Option(help="query descriptors (.npy), query i ↔ frame i")],
@@ -162,6 +172,7 @@ def bench_scale_real(
 ) -> None:
     """The default preset's inverted file on real descriptors: precision against its flat scan
     at the default nprobe and at larger shares of the lists."""
+    out = output_file(out, "--out")
     from service.bench.scale_real import run_scale_real_bench
 
     run_scale_real_bench(reference, query, out, preset, single, label, nlist)
@@ -187,6 +198,7 @@ def bench_growth(
     precision target, beside exact NN and PQ, with both power-law fits."""
     work_dir = writable_dir(work_dir, "--work-dir")
     out = output_file(out, "--out")
+    figure = None if figure is None else output_file(figure, "--figure")
     from service.bench.growth_bench import run_growth_bench
 
     run_growth_bench([int(s) for s in sizes.split(",")], n_features, region_length, query_noise,
@@ -194,6 +206,7 @@ def bench_growth(
 
 
 @app.command("sequence")
+@cli_errors
 def bench_sequence(
     sizes: Annotated[str, typer.Option(help="route lengths N timed, comma-separated")] = "10000,100000",
     repeats: Annotated[int, typer.Option(help="filter updates timed per N")] = 200,
@@ -204,6 +217,7 @@ def bench_sequence(
 ) -> None:
     """Sequence filter: per-frame cost beside the SeqSLAM filter; precision on Nordland
     (tuned on half A, reported on half B and the whole route) for exact NN and gridplace."""
+    out = output_file(out, "--out")
     from service.bench.sequence_bench import GRIDS, run_sequence_bench
     from service.errors import InvalidParameterError
 
@@ -228,22 +242,26 @@ JsonOut = Annotated[Path, typer.Option(help="JSON output")]
 
 
 @app.command("append")
+@cli_errors
 def bench_append(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
                  out: JsonOut = Path("bench-append.json"),
                  chunks: Annotated[int, typer.Option(min=1, help="chunks of the maps (1: unchunked)")] = 1,
                  ) -> None:  # fmt: skip
     """Append winter half A to a summer map (partial_fit) against training on both from
     scratch: time and precision on winter half B, beside the unappended map."""
+    out = output_file(out, "--out")
     from service.bench.append_bench import run_append_bench
 
     run_append_bench(ref, qry, out, half, chunks)
 
 
 @app.command("conditions")
+@cli_errors
 def bench_conditions(ref: SummerRef, qry: WinterQry, half: AppendedHalf = 1788,
                      out: JsonOut = Path("bench-conditions.json")) -> None:  # fmt: skip
     """Winter half A appended to a summer map tagged season=winter; winter half B queried
     with no condition, the condition named and inferred (single frames and drives)."""
+    out = output_file(out, "--out")
     from service.bench.conditions_bench import run_conditions_bench
 
     run_conditions_bench(ref, qry, out, half)

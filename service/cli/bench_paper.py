@@ -12,6 +12,8 @@ from rich.console import Console
 from rich.markdown import Markdown
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+from service.cli.paths import output_file, writable_dir
+
 console = Console()
 
 
@@ -91,6 +93,10 @@ def bench_paper(
     from service.harness.runner import redraw as redraw_results
 
     try:
+        if not redraw:  # its folder is written: a file in the way is refused before any work
+            writable_dir(out, "--out")
+        if markdown is not None:
+            markdown = output_file(markdown, "--markdown")
         if redraw:
             results = redraw_results(out)
             _finish(results, out, markdown)

@@ -8,7 +8,11 @@ from typing import Annotated
 
 import typer
 
+from service.cli.errors import cli_errors
+from service.cli.paths import output_file
 
+
+@cli_errors
 def bench_public_rss(
     n_frames: Annotated[int, typer.Option(help="route length N of the SYNTHETIC map served")] = 20_000,
     vehicle_d: Annotated[int, typer.Option(
@@ -35,7 +39,8 @@ def bench_public_rss(
         if not sep or not key.startswith("GRIDPLACE_"):
             raise InvalidParameterError(f"--set takes GRIDPLACE_NAME=VALUE, not {item!r}")
         env[key] = value
-    path = out or Path("docs/benchmarks") / f"public-rss-{datetime.now(UTC):%Y-%m-%d}.json"
+    path = output_file(out or Path("docs/benchmarks") / f"public-rss-{datetime.now(UTC):%Y-%m-%d}.json",
+                       "--out")  # fmt: skip
     report = run_public_rss_bench(n_frames, vehicle_d, seconds, env, path, rest_vehicles)
     bound = report["bound_mib"]
     typer.echo(f"baseline {report['baseline_mib']:.0f} MiB; peak above it "

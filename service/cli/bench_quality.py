@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 
 from service.cli.errors import cli_errors
+from service.cli.paths import output_file
 
 console = Console()
 
@@ -53,6 +54,9 @@ def bench_quality(
     """Precision (±0/2/5/10, single frame and sequence) and storage of exact NN, PQ, Yu et al.
     and gridplace configurations on the same descriptors: reference -> query traversal and
     multi-traversal; half A of the drive is validation, half B test."""
+    out = output_file(out, "--out")
+    figure = None if figure is None else output_file(figure, "--figure")
+    markdown = None if markdown is None else output_file(markdown, "--markdown")
     from service.bench.quality_bench import merge_reports
     from service.bench.quality_report import markdown_tables, plot_frontier, print_report
 

@@ -37,3 +37,28 @@ def test_bench_drive_refuses_a_folder_as_its_report(tmp_path: Path, option: str)
     got = CliRunner().invoke(app, ["bench", "drive", "--synthetic", "2000", option, str(tmp_path)])
     assert got.exit_code == 2, got.output
     assert "a folder, not a file" in " ".join(got.output.split()) and option in got.output
+
+
+@pytest.mark.parametrize("command", [
+    ["train"], ["workers"], ["serve"], ["grpc"], ["sequence"], ["quality"], ["public-rss"],
+    ["scale-real", "--reference", "r.npy", "--query", "q.npy"],
+    ["append", "--ref", "r.npy", "--qry", "q.npy"],
+    ["conditions", "--ref", "r.npy", "--qry", "q.npy"],
+])  # fmt: skip
+def test_every_bench_refuses_a_folder_as_its_json_before_any_work(tmp_path: Path,
+                                                                  command: list[str]) -> None:  # fmt: skip
+    got = CliRunner().invoke(app, ["bench", *command, "--out", str(tmp_path)])
+    assert got.exit_code == 2, got.output
+    assert "a folder, not a file" in " ".join(got.output.split()) and "--out" in got.output
+    assert got.exception is None or isinstance(got.exception, SystemExit)
+
+
+def test_bench_paper_refuses_a_file_as_its_output_folder(tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    got = CliRunner().invoke(app, ["bench", "paper", "--out", str(blocker)])
+    assert got.exit_code == 2, got.output
+    assert "not a folder" in " ".join(got.output.split()) and "--out" in got.output
+    got = CliRunner().invoke(app, ["bench", "paper", "--out", str(tmp_path / "o"),
+                                   "--markdown", str(tmp_path)])  # fmt: skip
+    assert got.exit_code == 2 and "a folder, not a file" in " ".join(got.output.split())
