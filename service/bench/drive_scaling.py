@@ -11,7 +11,8 @@ frames' precision, and the per-frame cost of each filter (CPU time per update; t
 over frames it spent in windows mode; and on drives started at their known first place,
 :meth:`~service.encoding.tracking.DriveTracker.start_at`, so that the tracker's cost is
 measured on every length even where the evidence does not concentrate the belief), and fits
-``bytes ≈ c·N^a`` over the lengths.
+``bytes ≈ c·N^a`` over the lengths. CPU times are measured with one BLAS thread, as the server
+runs.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from service.encoding.synthetic import SYNTHETIC_LABEL, route_queries, write_rou
 from service.encoding.tracking import DriveTracker
 
 SIZES = (10_000, 100_000, 1_000_000)
+BLAS_THREADS = 1  # the serving default (``Settings.serve_blas_threads``)
 
 
 @dataclass(frozen=True)
@@ -155,8 +157,12 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
 def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict[str, Any]:
     """Every size of ``opts`` (see the module doc); SYNTHETIC routes, written under
     ``workdir`` (a temporary folder by default) and removed afterwards."""
+    from threadpoolctl import threadpool_limits
+
     results = []
-    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+    # one BLAS thread, as the server runs (GRIDPLACE_SERVE_BLAS_THREADS=1): a library's idle
+    # threads spinning after each small product would count as the filter's CPU time
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp, threadpool_limits(BLAS_THREADS):
         for n in opts.sizes:
             results.append(measure_size(n, opts, Path(tmp)))
             (Path(tmp) / f"route-{n}.npy").unlink(missing_ok=True)
@@ -165,6 +171,7 @@ def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict
         "data": SYNTHETIC_LABEL,
         "options": opts.__dict__ | {"sizes": list(opts.sizes)},
         "filter": SequenceConfig().model_dump(),
+        "blas_threads": BLAS_THREADS,
         "sizes": results,
     }
     if len(sizes) >= 2:
