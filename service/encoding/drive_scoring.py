@@ -163,8 +163,11 @@ class CodeScorer:
         for j in range(len(self.digits)):
             lab = self.labels[j, idx]
             if prep.full[j] is None:  # only the classes asked for: O(window), not O(Στ)
-                uniq, inv = np.unique(lab, return_inverse=True)
-                out += self._classes(prep, j, uniq)[inv]
+                if lab.size <= self.digits[j].n_classes:  # no more rows than the code has:
+                    out += self._classes(prep, j, lab)  # a repeated class costs less than a sort
+                else:
+                    uniq, inv = np.unique(lab, return_inverse=True)
+                    out += self._classes(prep, j, uniq)[inv]
             else:
                 out += self._all(prep, j)[lab]
         return out
