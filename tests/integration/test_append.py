@@ -86,13 +86,20 @@ def server(tmp_path_factory: pytest.TempPathFactory, route) -> Iterator[ServerPr
         srv.stop()
 
 
-def test_an_append_publishes_a_new_version_recording_its_traversals(server, route) -> None:
-    ref, qry = route
+@pytest.fixture(scope="module")
+def winter_day(server, route) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Version 1 as it was, and the version appending 120 tagged winter rows to it."""
     with httpx.Client(base_url=server.url, timeout=60) as c:
         v1 = c.get("/v1/maps/route/versions/1", headers=AUTH).json()
-        r = _append(c, "route", 1, qry[:120], np.arange(120), tag=["season=winter", "time=day"])
+        r = _append(c, "route", 1, route[1][:120], np.arange(120), tag=["season=winter", "time=day"])
         assert r.status_code == 201, r.text
-        v2 = r.json()
+        return v1, r.json()
+
+
+def test_an_append_publishes_a_new_version_recording_its_traversals(server, route, winter_day) -> None:
+    ref, qry = route
+    v1, v2 = winter_day
+    with httpx.Client(base_url=server.url, timeout=60) as c:
         assert v2["version"] > 1 and not v2["active"]
         assert v2["n_traversals"] == 2 and v2["n_frames"] == N and v2["n_features"] == D
         assert v2["extra"]["appended_to"] == 1
@@ -134,13 +141,13 @@ def test_an_append_publishes_a_new_version_recording_its_traversals(server, rout
         assert got.json()["index"] == int(appended.predict(qry[150:151])[0])
 
 
-def test_appending_to_an_appended_version_keeps_the_whole_record(server, route) -> None:
+def test_appending_to_an_appended_version_keeps_the_whole_record(server, route, winter_day) -> None:
     _, qry = route
+    base = winter_day[1]["version"]
     with GridplaceClient(server.url, token=TOKEN) as gp:
-        versions = [v.version for v in gp.list_versions("route")]
-        v = gp.append_traversals("route", max(versions), qry[120:], places=[np.arange(120, N)],
+        v = gp.append_traversals("route", base, qry[120:], places=[np.arange(120, N)],
                                  tags=["season=winter"])  # fmt: skip
-        assert v.n_traversals == 3 and v.extra["appended_to"] == max(versions)
+        assert v.n_traversals == 3 and v.extra["appended_to"] == base
         assert set(v.metrics["conditions"]) == {"season=winter,time=day", "season=winter"}
         assert [t.get("tags") for t in v.extra["traversals"]][1:] == [
             {"season": "winter", "time": "day"}, {"season": "winter"}]  # fmt: skip

@@ -116,8 +116,8 @@ def test_a_second_server_on_a_taken_grpc_port_fails_before_serving(primary, tmp_
     assert "exited with 2" in message, message
     assert f"gRPC port 127.0.0.1:{grpc_port} is already in use" in message, message
     assert "Traceback" not in message, message
-    # every fresh connection still reaches the first server
-    assert [_list_maps(f"127.0.0.1:{grpc_port}") for _ in range(12)] == [["first"]] * 12
+    # every fresh connection still reaches the first server (the only one holding map ``first``)
+    assert all("first" in _list_maps(f"127.0.0.1:{grpc_port}") for _ in range(12))
 
 
 def test_a_taken_rest_port_fails_before_grpc_starts(primary, tmp_path) -> None:
@@ -186,5 +186,7 @@ def test_ctrl_c_after_training_exits_0_quietly_and_fails_the_running_job(primary
 
     job = Registry(primary.data_dir).get_job(job_id)
     assert job.state == "failed" and "server shut down" in (job.error or ""), job
+    primary.start()  # a restart on the same data dir (the module's other tests go on with it)
+    primary.wait_ready(30)
 
 

@@ -117,10 +117,42 @@ def synth(client: httpx.Client, route: tuple[np.ndarray, np.ndarray]) -> dict[st
     return job
 
 
+@pytest.fixture(scope="module")
+def imgs(client: httpx.Client) -> dict[str, Any]:
+    """An image route (40 tiny PNG frames in a zip) trained with a server-side extractor."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for i in range(40):
+            zf.writestr(f"frames/frame-{i:04d}.png", _png(i))
+    r = _upload(client, "imgs", buf.getvalue(), "frames.zip",
+                **{("extractor" if k == "kind" else k): str(v) for k, v in IMG_EXTRACTOR.items()})  # fmt: skip
+    assert r.status_code == 202, r.text
+    job = _wait_job(client, r.json()["id"])
+    assert job["state"] == "succeeded", job
+    _wait_serving(client, "imgs", 1)
+    return job
+
+
+@pytest.fixture(scope="module")
+def second_version(client: httpx.Client, synth: dict[str, Any], route: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
+    """Version 2 of ``synth`` (the route reversed); uploading it does not activate it."""
+    r = _upload(client, "synth", _npy(route[0][::-1].copy()))
+    job = _wait_job(client, r.json()["id"])
+    assert job["state"] == "succeeded" and job["version"] == 2
+    assert client.get("/v1/maps/synth", headers=AUTH).json()["active_version"] == 1  # not auto
+    return job
+
+
+def _activate(c: httpx.Client, name: str, version: int) -> None:
+    a = c.post(f"/v1/maps/{name}/versions/{version}/activate", headers=AUTH)
+    assert a.status_code == 200 and a.json()["active"] is True, a.text
+    _wait_serving(c, name, version)
+
+
 def test_upload_trains_a_first_version_that_serves(client: httpx.Client, synth: dict[str, Any]) -> None:
     assert synth["version"] == 1 and synth["finished_at"]
-    maps = client.get("/v1/maps", headers=AUTH).json()
-    assert [m["name"] for m in maps] == ["synth"] and maps[0]["active_version"] == 1
+    maps = {m["name"]: m for m in client.get("/v1/maps", headers=AUTH).json()}
+    assert "synth" in maps and maps["synth"]["active_version"] is not None
     v = client.get("/v1/maps/synth/versions", headers=AUTH).json()[0]
     assert v["n_frames"] == N and v["n_features"] == D and v["params"]["trainer"] == "ridge"
     assert v["footprint"]["actual_bytes"] > 0 and v["extractor"] is None
@@ -128,6 +160,7 @@ def test_upload_trains_a_first_version_that_serves(client: httpx.Client, synth: 
 
 
 def test_localize_single_batch_b64_binary(client, synth, route, data_dir) -> None:
+    _activate(client, "synth", 1)
     ref, qry = route
     Q = qry[:40]
     want = _oracle(data_dir, "synth", 1, Q)
@@ -145,17 +178,7 @@ def test_localize_single_batch_b64_binary(client, synth, route, data_dir) -> Non
     assert hits.mean() > 0.5  # the served model localizes its own route
 
 
-def test_image_route_and_image_queries(client, data_dir) -> None:
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for i in range(40):
-            zf.writestr(f"frames/frame-{i:04d}.png", _png(i))
-    r = _upload(client, "imgs", buf.getvalue(), "frames.zip",
-                **{("extractor" if k == "kind" else k): str(v) for k, v in IMG_EXTRACTOR.items()})  # fmt: skip
-    assert r.status_code == 202, r.text
-    job = _wait_job(client, r.json()["id"])
-    assert job["state"] == "succeeded", job
-    _wait_serving(client, "imgs", 1)
+def test_image_route_and_image_queries(client, imgs, data_dir) -> None:
     version = client.get("/v1/maps/imgs/versions/1", headers=AUTH).json()
     assert version["extractor"] == IMG_EXTRACTOR and version["n_features"] == 32 * 16
     ext = make_extractor(IMG_EXTRACTOR)
@@ -184,7 +207,7 @@ def _bad_cases() -> list[tuple[str, str, dict[str, Any], int, str]]:
 
 
 @pytest.mark.parametrize("case", _bad_cases(), ids=lambda c: c[0])
-def test_bad_queries_are_4xx_naming_the_problem(client, synth, case) -> None:
+def test_bad_queries_are_4xx_naming_the_problem(client, synth, imgs, case) -> None:
     _, path, kwargs, status, needle = case
     r = client.post(path, **kwargs)
     assert r.status_code == status, r.text
@@ -223,11 +246,8 @@ def test_auth_is_refused_without_the_token(client) -> None:
     assert r.status_code == 401 and r.json()["error"] == "unauthorized"
 
 
-def test_activation_and_rollback_while_requests_are_in_flight(client, server, synth, route) -> None:
-    r = _upload(client, "synth", _npy(route[0][::-1].copy()))
-    job = _wait_job(client, r.json()["id"])
-    assert job["state"] == "succeeded" and job["version"] == 2
-    assert client.get("/v1/maps/synth", headers=AUTH).json()["active_version"] == 1  # not auto
+def test_activation_and_rollback_while_requests_are_in_flight(client, server, second_version, route) -> None:
+    _activate(client, "synth", 1)
     failures: list[str] = []
     seen: set[int] = set()
     stop = threading.Event()
@@ -260,15 +280,23 @@ def test_activation_and_rollback_while_requests_are_in_flight(client, server, sy
     assert client.delete("/v1/maps/synth/versions/2", headers=AUTH).status_code == 409  # active
 
 
-def test_map_without_active_version_is_409(client) -> None:
+def test_map_without_active_version_is_409(client, imgs) -> None:
     d = client.post("/v1/maps/imgs/deactivate", headers=AUTH)
-    assert d.status_code == 200 and d.json()["active_version"] is None
-    r = client.post("/v1/localize", json={"map": "imgs", "descriptor": [0.0] * 512})
-    assert r.status_code == 409 and "no active version" in r.json()["message"]
-    assert client.get("/readyz").status_code == 200  # a map with nothing active is not awaited
+    try:
+        assert d.status_code == 200 and d.json()["active_version"] is None
+        r = client.post("/v1/localize", json={"map": "imgs", "descriptor": [0.0] * 512})
+        assert r.status_code == 409 and "no active version" in r.json()["message"]
+        assert client.get("/readyz").status_code == 200  # a map with nothing active is not awaited
+    finally:  # the other tests of this module query the image map
+        _activate(client, "imgs", 1)
 
 
-def test_metrics_cover_requests_localize_models_and_jobs(client, synth) -> None:
+def test_metrics_cover_requests_localize_models_and_jobs(client, second_version, route) -> None:
+    _activate(client, "synth", 2)
+    job = _wait_job(client, _upload(client, "metered", _npy(route[0][:100])).json()["id"])
+    assert job["state"] == "succeeded", job  # this server process has finished a training job
+    assert client.post("/v1/localize", json={"map": "synth", "descriptor": route[1][0].tolist()}).status_code == 200
+    assert client.post("/v1/localize", json={"map": "synth", "descriptor": [0.0]}).status_code == 400
     text = client.get("/metrics").text
     for needle in (
         'gridplace_http_requests_total{method="POST",route="/v1/localize",status="200"}',
@@ -284,7 +312,8 @@ def test_metrics_cover_requests_localize_models_and_jobs(client, synth) -> None:
         assert needle in text, needle
 
 
-def test_restart_reloads_the_active_versions(server, route, data_dir) -> None:
+def test_restart_reloads_the_active_versions(server, client, second_version, route, data_dir) -> None:
+    _activate(client, "synth", 2)
     # SIGTERM: a graceful shutdown, then exit 0 (the pool's semaphores released, not leaked)
     assert server.stop() == 0, server.log()
     assert "Traceback" not in server.log() and "leaked" not in server.log(), server.log()
@@ -296,7 +325,7 @@ def test_restart_reloads_the_active_versions(server, route, data_dir) -> None:
         assert r.json()["index"] == _oracle(data_dir, "synth", 2, route[1][3])[0]
 
 
-def test_unreachable_redis_refuses_training_but_localize_answers(data_dir, route) -> None:
+def test_unreachable_redis_refuses_training_but_localize_answers(data_dir, synth, route) -> None:
     env = {**ENV, "GRIDPLACE_REDIS_URL": f"redis://127.0.0.1:{free_port()}/0"}
     with ServerProcess(data_dir, env=env) as srv, httpx.Client(base_url=srv.url, timeout=30) as c:
         srv.wait_ready(30)
