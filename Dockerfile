@@ -2,10 +2,12 @@
 # gridplace: REST + gRPC API server (default command) and RQ training worker (`gridplace worker`).
 #
 #   docker build -t gridplace .                                  # CPU PyTorch (default)
-#   docker build --build-arg BASE_IMAGE=nvidia/cuda:12.4.1-runtime-ubuntu22.04 \
-#                --build-arg TORCH_INDEX=https://download.pytorch.org/whl/cu124 -t gridplace:cuda .
+#   docker build --build-arg TORCH_INDEX=https://download.pytorch.org/whl/cu124 -t gridplace:cuda .
+#
+# Both stages run the same Python image: the venv's interpreter is the build stage's. A CUDA
+# build needs no CUDA base image: PyTorch's cu124 wheels bring the CUDA runtime libraries as pip
+# packages, and the host's driver comes in through the NVIDIA container runtime (`--gpus all`).
 ARG PYTHON_IMAGE=python:3.11-slim-bookworm
-ARG BASE_IMAGE=${PYTHON_IMAGE}
 
 FROM ${PYTHON_IMAGE} AS build
 ARG TORCH_INDEX=https://download.pytorch.org/whl/cpu
@@ -20,7 +22,7 @@ RUN python -m venv /opt/gridplace \
  && /opt/gridplace/bin/pip install --index-url ${TORCH_INDEX} "torch==2.13.0" \
  && /opt/gridplace/bin/pip install ".[torch]" -c requirements/lock.txt
 
-FROM ${BASE_IMAGE} AS runtime
+FROM ${PYTHON_IMAGE} AS runtime
 ENV PATH=/opt/gridplace/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     GRIDPLACE_HOST=0.0.0.0 \

@@ -4,8 +4,7 @@
 - ``pq-mM``: product quantisation with ``M`` sub-quantisers (faiss; ``M`` divides ``d``);
 - ``residue-rR`` / ``residue-kK-rR``: the ``residue`` preset with ``K`` digits (default 2)
   and automatic periods whose sum is ``Στ ≈ R·N``;
-- any encoder preset by its name (``robust``, ``ridge``, ``residue``, ``paper``, and every
-  preset added later, e.g. ``drive``).
+- any encoder preset by its name (``robust``, ``ridge``, ``residue``, ``paper``, ``drive``).
 
 Each is an unfitted model with ``fit``, ``frame_log_scores`` and ``footprint``.
 """
@@ -70,12 +69,12 @@ def _preset_method(name: str, **given: Any) -> DriveMethod:
 
 
 def methods(names: str | None) -> list[DriveMethod]:
-    """The comma-separated ``names`` (default :data:`DEFAULT_METHODS`, plus the ``drive``
-    preset when it exists)."""
+    """The comma-separated ``names`` (default :data:`DEFAULT_METHODS` and the ``drive``
+    preset)."""
     if names:
         chosen = [n.strip() for n in names.split(",") if n.strip()]
     else:
-        chosen = [*DEFAULT_METHODS, *(["drive"] if "drive" in PRESETS else [])]
+        chosen = [*DEFAULT_METHODS, "drive"]
     if len(set(chosen)) != len(chosen):
         raise InvalidParameterError(f"a method is named twice in {chosen}")
     return [method(n) for n in chosen]

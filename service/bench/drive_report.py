@@ -84,9 +84,23 @@ def rows(report: dict[str, Any], config: str, split: str) -> list[tuple[list[str
     return out
 
 
+def filter_setting(f: dict[str, Any]) -> str:
+    """The filter parameters a reader compares runs by, from a run's ``filter`` record."""
+    parts = [f"speeds {f['min_speed']:g}–{f['max_speed']:g} by {f['speed_step']:g}",
+             "reverse" if f.get("reverse") else "forwards only",
+             f"stops {f['stop_probability']:g}" if f.get("stop_probability") else "no stopped state",
+             f"relocalisation {f['relocalization']:g}", f"emission scale {f['emission_scale']:g}"]  # fmt: skip
+    if f.get("repeat_novelty"):
+        parts.append(f"repeat novelty {f['repeat_novelty']:g}")
+    return ", ".join(parts)
+
+
 def _title(report: dict[str, Any], config: str, split: str) -> str:
     lo, hi = report["splits"][split]
-    what = "filter defaults" if config == "default" else f"filter tuned on A ({report['tuning']['mode']})"
+    if config == "default":
+        what = "filter defaults of this run" + (f" ({filter_setting(report['filter'])})" if "filter" in report else "")
+    else:
+        what = f"filter tuned on A ({report['tuning']['mode']})"
     return (f"{report['data']['label']} — drives in {split} [{lo}, {hi}), {what}, "
             f"precision % within ±{report['tolerance']} frames")  # fmt: skip
 

@@ -52,7 +52,7 @@ def bench_drive(
     methods: Annotated[str | None, typer.Option(
         help="comma-separated: exact-nn, pq-mM, residue-rR, residue-kK-rR, or any preset "
              "(default: exact-nn, pq-m64, robust, residue r=0.1/0.034, k=3 r=0.013, ridge, "
-             "and drive when it exists)")] = None,
+             "drive)")] = None,
     protocols: Annotated[str, typer.Option(help="comma-separated")] = "whole,short,speed,traffic,kidnap,reverse",
     drives: Annotated[int, typer.Option("--drives", help="short drives from random starts")] = 100,
     short_length: Annotated[int, typer.Option(
@@ -85,7 +85,8 @@ def bench_drive(
                          "--figure)")] = None,
 ) -> None:
     """Localise moving vehicles: the whole drive, short drives from random starts (L90),
-    variable speed with stops, a kidnapped vehicle and a backwards drive, with and without
+    variable speed with stops, traffic (cruising, braking, long stops), a kidnapped vehicle and
+    a backwards drive, with and without
     SIMULATED odometry; every method through the same filter; half A tunes, B reports."""
     from service.bench.drive_bench import DriveSettings, run_drive_bench
     from service.bench.drive_data import load_route

@@ -128,7 +128,7 @@ def upload(
     periods: Annotated[str | None, typer.Option(help="explicit periods, e.g. 60,60")] = None,
     rho: Annotated[float | None, typer.Option(help="fraction of columns per encoder")] = None,
     c: Annotated[float | None, typer.Option("--C", help="inverse regularisation")] = None,
-    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8")] = None,
+    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8 | binary (sign bits: class templates)")] = None,
     chunks: Annotated[int | None, typer.Option(help="number of chunks")] = None,
     extractor: Annotated[
         str | None, typer.Option(help="patchnorm | hog | cnn (image archives)")

@@ -71,7 +71,7 @@ def train(
     c: Annotated[float | None, typer.Option("--C", help="inverse regularisation",
                                             show_default=False)] = None,
     decode: Annotated[str, typer.Option(help="joint | argmax")] = "joint",
-    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8",
+    dtype: Annotated[str | None, typer.Option(help="float64 | float32 | float16 | int8 | binary (sign bits: class templates)",
                                               show_default=False)] = None,
     code: Annotated[str | None, typer.Option(help="mixed_radix | residue",
                                              show_default=False)] = None,
@@ -107,7 +107,7 @@ def train(
         )
     arrays = [load_npy(path) for path in references]
     index = [load_npy(path) for path in places] if places else None
-    if len(arrays) == 1:  # one file: messages name it, as before
+    if len(arrays) == 1:  # one file: messages name it
         arrays = [check_descriptors(arrays[0], min_rows=1 if index else 2, what=str(references[0]))]
     tuning = None
     if wants_tuning(budget_bytes, target_precision):

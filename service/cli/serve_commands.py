@@ -1,4 +1,4 @@
-"""``gridplace serve``: the REST model server (and, once present, gRPC in the same process)."""
+"""``gridplace serve``: the REST model server, and gRPC in the same process when ``GRIDPLACE_GRPC_PORT`` is set."""
 
 from __future__ import annotations
 

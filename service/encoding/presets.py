@@ -1,5 +1,5 @@
-"""Named encoder configurations: the paper's code, the old fast default, and the product
-default chosen by measurement across conditions.
+"""Named encoder configurations: the paper's code, its closed-form ridge variant, the product
+default chosen by measurement across conditions, and the codes for drives.
 
 A preset fixes the parameters that define the encoder (trainer, code, front-end, storage);
 :class:`service.encoding.factory.ModelParams` starts from one preset and explicit fields
@@ -20,7 +20,7 @@ says what it was trained with.
 
 - ``paper``: Le & Milford's code: LIBLINEAR logistic regression (``C = 4``), mixed-radix
   digits, ``k = 2``, ``ρ = 0.5``, no projection, float32.
-- ``ridge``: the same code with the closed-form ridge trainer (the earlier fast default).
+- ``ridge``: the same code with the closed-form ridge trainer (fitted in seconds).
 - ``robust``: PCA-256 front-end whitened with power 0.75, ``prototype`` classifiers, int8
   weights, one digit whose period is the route (``k = 1``): one class per frame, i.e. a
   cosine nearest neighbour in the projected space with a softmax over the frames
@@ -38,10 +38,10 @@ says what it was trained with.
   vehicle's motion tells the aliases apart through the sequence filter
   (:mod:`service.encoding.tracking`), whose per-frame cost then does not grow with ``N``.
 
-Measured across seasons on Nordland (summer reference, winter queries) both are far above
-the mixed-radix presets, which are near chance there. Their storage is ``≈ Στ·n_components``
-bytes (about 136 B per frame with biases and scales: linear in ``N``) plus the fixed
-projection.
+Measured across seasons on Nordland (summer reference, winter queries) ``robust`` and
+``residue`` are far above the mixed-radix presets, which are near chance there. Their storage is
+``≈ Στ·n_components`` bytes with biases and scales (about 264 B per frame for ``robust`` at
+PCA-256, 136 B at PCA-128: linear in ``N``) plus the fixed projection.
 """
 
 from __future__ import annotations

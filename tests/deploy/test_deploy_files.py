@@ -122,6 +122,8 @@ def test_dockerfile_matches_the_settings() -> None:
     assert "HEALTHCHECK" in text and "/healthz" in text
     assert 'VOLUME ["/data"]' in text
     assert text.count("FROM ") >= 2, "multi-stage build"
+    stages = re.findall(r"^FROM\s+(\S+)", text, re.MULTILINE)
+    assert len(set(stages)) == 1, f"the venv copied between stages needs the same Python: {stages}"
     assert "torch==2.13.0" in text
     for env in re.findall(r"(GRIDPLACE_[A-Z_]+)=", text):
         assert env in SETTINGS_ENV
