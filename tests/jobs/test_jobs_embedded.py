@@ -146,6 +146,7 @@ def test_closed_backend_fails_its_unfinished_jobs(data_dir, registry, route_file
 
 def test_a_job_over_its_time_limit_fails_and_publishes_nothing(data_dir, registry, wait_done):
     path = data_dir / "uploads" / "synthetic-long.npy"
+    path.parent.mkdir(parents=True, exist_ok=True)
     np.save(path, smooth_route(2400, 256, seed=9).reference)  # SYNTHETIC; logreg takes seconds
     b = EmbeddedBackend(Settings(data_dir=data_dir, train_workers=1, job_timeout_s=1), registry)
     try:
