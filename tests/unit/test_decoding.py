@@ -88,3 +88,28 @@ def test_argmax_falls_back_to_joint_when_digits_point_past_the_route() -> None:
     )
     assert index.tolist() == [best]
     assert index[0] < 7
+
+
+@given(
+    shape=st.tuples(st.integers(1, 5), st.integers(1, 3), st.integers(1, 40)),
+    levels=st.integers(1, 6),
+    seed=st.integers(0, 2**31),
+    pad=st.booleans(),
+)
+@settings(max_examples=200, deadline=None)
+def test_free_decode_finds_each_digits_top_two_as_a_sort_does(
+    shape: tuple[int, int, int], levels: int, seed: int, pad: bool
+) -> None:
+    from service.encoding.exact_decode import free_decode
+
+    rng = np.random.default_rng(seed)
+    S = rng.integers(0, levels, shape).astype(np.float64)  # few levels: ties are common
+    if pad and shape[2] > 1:
+        S[:, :, rng.integers(1, shape[2]) :] = -np.inf  # padding beyond a digit's period
+    free = free_decode(S)
+    ordered = np.sort(S, axis=2)
+    np.testing.assert_array_equal(free.top, ordered[:, :, -1])
+    np.testing.assert_array_equal(free.digits, S.argmax(axis=2))
+    second = ordered[:, :, -2] if shape[2] >= 2 else np.full(shape[:2], -np.inf)
+    with np.errstate(invalid="ignore"):
+        np.testing.assert_array_equal(free.gaps, ordered[:, :, -1] - second)
