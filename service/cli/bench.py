@@ -49,6 +49,13 @@ def bench_workers(
     run_workers_bench(n_frames, n_features, chunks, workers, trainer, registry_url, out)
 
 
+def _overrides(trainer: str | None, patterns: int | None) -> dict[str, str]:
+    """Fields given on the command line over the preset's (``--preset robust`` alone is the
+    default as it ships, not its front-end under another trainer)."""
+    out = {} if trainer is None else {"trainer": trainer}
+    return out if patterns is None else {**out, "n_patterns": str(patterns)}
+
+
 @app.command("serve")
 @cli_errors
 def bench_serve(
@@ -56,8 +63,8 @@ def bench_serve(
     single: Annotated[int, typer.Option(help="single-descriptor requests per form")] = 500,
     batch_queries: Annotated[int, typer.Option(help="queries sent in batches")] = 4096,
     batch_size: Annotated[int, typer.Option(help="queries per batch request")] = 256,
-    trainer: Annotated[str, typer.Option()] = "ridge",
-    patterns: Annotated[int, typer.Option(help="k")] = 2,
+    trainer: Annotated[str | None, typer.Option(help="the preset's own unless given")] = None,
+    patterns: Annotated[int | None, typer.Option(help="k (the preset's own unless given)")] = None,
     chunks: Annotated[int, typer.Option(help="n_chunks")] = 1,
     preset: Annotated[str, typer.Option(
         help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
@@ -70,8 +77,7 @@ def bench_serve(
     out = output_file(out, "--out")
     from service.bench.serve_bench import run_serve_bench
 
-    params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns),
-              "n_chunks": str(chunks)}  # fmt: skip
+    params = {"encoder_preset": preset, "n_chunks": str(chunks), **_overrides(trainer, patterns)}
     run_serve_bench(n_frames, single, batch_queries, batch_size, params, out, compare)
 
 
@@ -84,8 +90,8 @@ def bench_grpc(
     rest_batch: Annotated[int, typer.Option(help="queries per REST batch request")] = 256,
     query_noise: Annotated[float, typer.Option(help="noise of the SYNTHETIC filter route")] = 1.0,
     noisy_d: Annotated[int, typer.Option(help="descriptor size of the SYNTHETIC filter route")] = 256,
-    trainer: Annotated[str, typer.Option()] = "ridge",
-    patterns: Annotated[int, typer.Option(help="k")] = 2,
+    trainer: Annotated[str | None, typer.Option(help="the preset's own unless given")] = None,
+    patterns: Annotated[int | None, typer.Option(help="k (the preset's own unless given)")] = None,
     window: Annotated[int, typer.Option(help="frames in flight per stream")] = 16,
     preset: Annotated[str, typer.Option(
         help="encoder preset; the docs/RESULTS Serving tables use ridge (the paper's mixed-radix "
@@ -104,7 +110,7 @@ def bench_grpc(
     out = output_file(out, "--out")
     from service.bench.grpc_bench import run_grpc_bench
 
-    params = {"encoder_preset": preset, "trainer": trainer, "n_patterns": str(patterns)}
+    params = {"encoder_preset": preset, **_overrides(trainer, patterns)}
     waits = [float(w) for w in wait_grid.split(",") if w.strip()]
     run_grpc_bench(n_frames, frames, streams, rest_batch, query_noise, noisy_d, params, out,
                    window, compare, waits or None, floor, grid_frames)  # fmt: skip
