@@ -43,19 +43,25 @@ def log_softmax_last(S: np.ndarray) -> np.ndarray:
     return tmp - np.log(np.exp(tmp).sum(axis=-1, keepdims=True))
 
 
+def top_two(S: np.ndarray, digits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The largest and second-largest of ``S (P, k, width)`` along its last axis, given its
+    argmax ``digits``: the maximum with each argmax masked (a tie keeps its value; a single
+    class has no runner-up, ``−inf``). Two passes, where a partition over a route's ``N``
+    scores costs about ten times as much."""
+    if S.shape[2] < 2:
+        return S[:, :, 0], np.full(S.shape[:2], -np.inf)
+    at = digits[:, :, None]
+    top = np.take_along_axis(S, at, axis=2)[:, :, 0]
+    rest = S.copy()
+    np.put_along_axis(rest, at, -np.inf, axis=2)
+    return top, rest.max(axis=2)
+
+
 def free_decode(S: np.ndarray, padded: bool = False) -> FreeDecode:
     """Argmax of every digit of raw scores ``S (P, k, width)``, the summed log-probability
     of those digits and every digit's runner-up gap (``padded``: some digits are all −inf)."""
     digits = S.argmax(axis=2)
-    width = S.shape[2]
-    if width >= 2:  # the runner-up: the maximum with each argmax masked (a tie keeps its value)
-        at = digits[:, :, None]
-        top = np.take_along_axis(S, at, axis=2)[:, :, 0]
-        rest = S.copy()  # two passes: a partition costs ~10x more over a route's N frames
-        np.put_along_axis(rest, at, -np.inf, axis=2)
-        second = rest.max(axis=2)
-    else:
-        top, second = S[:, :, 0], np.full(S.shape[:2], -np.inf)
+    top, second = top_two(S, digits)
     if padded:  # a missing digit (all −inf) adds 0 and has no runner-up
         missing = np.isneginf(top)
         top, second = np.where(missing, 0.0, top), np.where(missing, -np.inf, second)

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.encoding.exact_decode import top_two
+
 if TYPE_CHECKING:
     from service.encoding.serving_plan import ServingPlan
 
@@ -103,13 +105,8 @@ class SingleQueryPath:
         S = buf + self.bias[top]  # float32 products + float64 biases, as the batch path
         if self.beta is not None:
             S *= self.beta[top]
-        width = S.shape[2]
         digits = S.argmax(axis=2)
-        if width >= 2:
-            top2 = np.partition(S, width - 2, axis=2)
-            best_d, second = top2[:, :, -1], top2[:, :, -2]
-        else:
-            best_d, second = S[:, :, 0], np.full((m, k), -np.inf)
+        best_d, second = top_two(S, digits)
         log_norm = np.log(np.add.reduce(np.exp(S - best_d[:, :, None]), axis=2))
         total = (top_lp - np.add.reduce(log_norm, axis=1)).tolist()
         local = np.add.reduce(digits * p._place[top], axis=1).tolist()
