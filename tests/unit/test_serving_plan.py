@@ -155,6 +155,22 @@ def test_a_batch_answers_as_its_rows_one_by_one() -> None:
         np.testing.assert_allclose(model.frame_log_scores(Q[i : i + 1])[0], F[i], rtol=1e-12)
 
 
+@pytest.mark.parametrize("rows", [2, 3, 9, 10, 40])
+def test_batches_of_few_rows_multiply_them_one_by_one_with_the_same_answers(rows: int) -> None:
+    from service.encoding.factory import ModelParams, build_model
+    from service.encoding.serving_blocks import gemv_rows
+
+    assert gemv_rows(1 << 20) == 10 and gemv_rows(1 << 30) == 4
+    route = smooth_route(600, 48, query_noise=0.5, seed=6)  # SYNTHETIC
+    model = build_model(ModelParams.parse(encoder_preset="robust")).fit(route.reference)
+    Q = route.query.astype(np.float64)[: 3 * rows]
+    blocks = [model.localize(Q[s : s + rows]) for s in range(0, Q.shape[0], rows)]
+    one = [model.localize(Q[i : i + 1]) for i in range(Q.shape[0])]
+    np.testing.assert_array_equal(np.concatenate([b.index for b in blocks]), [o.index[0] for o in one])
+    np.testing.assert_allclose(np.concatenate([b.confidence for b in blocks]),
+                               [o.confidence[0] for o in one], rtol=1e-5)  # fmt: skip
+
+
 def test_frame_scores_match_brute_force() -> None:
     route = smooth_route(500, 20, seed=8)
     for model in (PhaseEncoder(periods=(23, 23), trainer="ridge").fit(route.reference),
