@@ -152,7 +152,7 @@ def _activate(c: httpx.Client, name: str, version: int) -> None:
 def test_upload_trains_a_first_version_that_serves(client: httpx.Client, synth: dict[str, Any]) -> None:
     assert synth["version"] == 1 and synth["finished_at"]
     maps = {m["name"]: m for m in client.get("/v1/maps", headers=AUTH).json()}
-    assert "synth" in maps and maps["synth"]["active_version"] is not None
+    assert "synth" in maps and maps["synth"]["active_version"] in (1, 2)  # 2: another test's
     v = client.get("/v1/maps/synth/versions", headers=AUTH).json()[0]
     assert v["n_frames"] == N and v["n_features"] == D and v["params"]["trainer"] == "ridge"
     assert v["footprint"]["actual_bytes"] > 0 and v["extractor"] is None
