@@ -58,9 +58,9 @@ def descriptor_pair(reference: Path, query: Path, ground_truth: Path | None = No
     """A dataset from two ``.npy`` descriptor files (float, used as stored)."""
     ref = load_npy(reference).astype(np.float32, copy=False)
     qry = load_npy(query).astype(np.float32, copy=False)
-    if ref.ndim != 2 or qry.ndim != 2 or ref.shape[1] != qry.shape[1]:
+    if ref.ndim != 2 or qry.ndim != 2 or ref.shape[1] != qry.shape[1] or 0 in (*ref.shape, *qry.shape):
         raise InvalidInputError(f"{reference} {ref.shape} and {query} {qry.shape} must be (n, d) "
-                                "with the same d")  # fmt: skip
+                                "with the same d, n ≥ 1 and d ≥ 1")  # fmt: skip
     if ground_truth is not None:
         truth = load_npy(ground_truth).astype(np.int64)
     elif qry.shape[0] <= ref.shape[0]:
@@ -71,7 +71,7 @@ def descriptor_pair(reference: Path, query: Path, ground_truth: Path | None = No
         )
     if truth.shape != (qry.shape[0],) or truth.min() < 0 or truth.max() >= ref.shape[0]:
         raise InvalidInputError("ground truth must give one reference index per query")
-    label = name or reference.parent.name
+    label = name or reference.resolve().parent.name
     return Dataset(
         name=label, reference=ref, query=qry, ground_truth=truth,
         label=f"{label}: reference {ref.shape[0]} x query {qry.shape[0]}, d={ref.shape[1]}, "

@@ -128,6 +128,19 @@ def test_unknown_methods_and_bad_pairs_are_named(folder: Path, tmp_path: Path) -
     np.save(tmp_path / "q.npy", np.zeros((5, 4), dtype=np.float32))
     with pytest.raises(InvalidInputError, match="same d"):
         descriptor_pair(tmp_path / "r.npy", tmp_path / "q.npy")
+    np.save(tmp_path / "q.npy", np.zeros((0, 3), dtype=np.float32))
+    with pytest.raises(InvalidInputError, match="n ≥ 1"):
+        descriptor_pair(tmp_path / "r.npy", tmp_path / "q.npy")
+
+
+def test_a_pair_given_by_relative_paths_is_named_after_its_folder(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    (tmp_path / "route7").mkdir()
+    np.save(tmp_path / "route7" / "r.npy", np.ones((4, 3), dtype=np.float32))
+    np.save(tmp_path / "route7" / "q.npy", np.ones((4, 3), dtype=np.float32))
+    monkeypatch.chdir(tmp_path / "route7")
+    ds = descriptor_pair(Path("r.npy"), Path("q.npy"))
+    assert ds.name == "route7" and ds.label.startswith("route7: reference 4 x query 4")
 
 
 def test_cli_on_a_descriptor_pair_writes_json_and_a_figure(folder: Path, tmp_path: Path) -> None:
