@@ -4,7 +4,8 @@ A model with one class per frame (the ``robust`` preset: ``k = 1``, a period equ
 route) answers a query with the best-scoring of its ``N`` stored prototypes. The flat scan
 scores all of them; on a long route that is the whole cost of a query. The inverted file
 groups the prototypes into ``nlist`` lists by spherical k-means (FAISS, :class:`faiss.Kmeans`);
-a query scores the ``nlist`` centroids, then only the prototypes of its ``nprobe`` best
+a query scores the ``nlist`` centroids (FAISS's flat index for a few queries, one matrix
+product per block of a larger batch), then only the prototypes of its ``nprobe`` best
 lists, with the model's stored int8 weights and its own scale, bias and temperature, so a
 candidate's score is the flat scan's score of that frame. The answer is the best
 candidate (the lowest frame on ties, as the flat scan); its log-score is the log-softmax
@@ -81,6 +82,19 @@ def default_nprobe(nlist: int, n_frames: int) -> int:
 def _dequantised(weight: np.ndarray, scale: np.ndarray | None, s: int, e: int) -> np.ndarray:
     block = np.asarray(weight[s:e], dtype=np.float32)
     return block if scale is None else block * scale[s:e, None]
+
+
+#: queries from which the lists are ranked by one matrix product (NumPy's BLAS) instead of
+#: FAISS's flat index, which scans the centroids query by query up to a few hundred queries
+#: (one BLAS thread, 4,000 × 256 centroids, µs a query, FAISS / product: 158–172 / 195–210 at
+#: 1 query, 157–161 / 184–186 at 4, 152–160 / 104–105 at 8, 149–155 / 55–60 at 20, 152 / 31 at
+#: 256, 72–73 / 36 at 2,000)
+GEMM_RANK_ROWS = 8
+#: queries ranked per product: at most this many, and at most _RANK_BLOCK_SCORES centroid scores
+#: (4 MB of float32 beside their 8 MB of partition indices), so the ranking's memory is bounded
+#: whatever the batch (the work budget counts a batch by its scan's entries per query)
+_RANK_BLOCK_ROWS = 256
+_RANK_BLOCK_SCORES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -163,11 +177,23 @@ class InvertedFile:
         return self.nlist + int(sizes[sizes.size - p:].sum())
 
     def lists(self, Z: np.ndarray, nprobe: int | None = None) -> np.ndarray:
-        """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first (the order of
-        lists whose centroids score alike is FAISS's)."""
+        """``(n, nprobe)`` lists of float32 rows ``Z`` (``(n, m)``), best first: FAISS's flat
+        index for fewer than :data:`GEMM_RANK_ROWS` rows, else one matrix product per block of
+        rows (lists whose centroids score alike: FAISS's order; in a product's ranking the lower
+        list first, and either where they tie for the last of the ``nprobe``)."""
         p = min(self.nlist, self.nprobe if nprobe is None else int(nprobe))
-        _, top = self.coarse.search(np.ascontiguousarray(Z, dtype=np.float32), p)
-        return top
+        Z = np.ascontiguousarray(Z, dtype=np.float32)
+        if Z.shape[0] < GEMM_RANK_ROWS:
+            _, top = self.coarse.search(Z, p)
+            return top  # type: ignore[no-any-return]
+        out = np.empty((Z.shape[0], p), dtype=np.int64)
+        step = max(GEMM_RANK_ROWS, min(_RANK_BLOCK_ROWS, _RANK_BLOCK_SCORES // self.nlist))
+        for lo in range(0, Z.shape[0], step):
+            S = Z[lo : lo + step] @ self.centroids.T
+            top = np.argpartition(S, self.nlist - p, axis=1)[:, self.nlist - p :]
+            s = np.take_along_axis(S, top, axis=1)
+            out[lo : lo + step] = np.take_along_axis(top, np.lexsort((top, -s), axis=-1), axis=1)
+        return out
 
     def candidates(self, lists: np.ndarray) -> np.ndarray:
         """Frames of the given lists (one query's), concatenated."""

@@ -12,8 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.encoding import PhaseEncoder, load_model, save_model
-from service.encoding.inverted_file import (DEFAULT_NPROBE, MIN_CANDIDATES, InvertedFile,
-                                            default_nlist, default_nprobe)
+from service.encoding import inverted_file
+from service.encoding.inverted_file import (DEFAULT_NPROBE, GEMM_RANK_ROWS, MIN_CANDIDATES,
+                                            InvertedFile, default_nlist, default_nprobe)
 from service.encoding import ivf_scan
 from service.encoding.ivf_scan import search
 from service.encoding.quantization import QuantizedLinear, int8_products, int8_products64
@@ -106,6 +107,40 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
         S = ((Z[i] @ rows.weight.astype(np.float32).T) * rows.rowscale).astype(np.float64)
         flat_lp = S[index[i]] - S.max() - np.log(np.exp(S - S.max()).sum())
         assert score[i] >= flat_lp - 1e-5  # an upper bound of the frame's flat log-softmax
+
+
+@settings(max_examples=30, deadline=None)
+@given(nlist=st.integers(1, 60), nprobe=st.integers(1, 60), n_queries=st.integers(1, 40),
+       seed=st.integers(0, 2**16), block=st.sampled_from([1, 9, 97, 256]))  # fmt: skip
+def test_a_batch_ranks_the_lists_as_each_query_alone(nlist: int, nprobe: int, n_queries: int,
+                                                     seed: int, block: int) -> None:  # fmt: skip
+    """Batches from GEMM_RANK_ROWS queries rank the centroids by one product per block of rows;
+    the lists, their order included, are those FAISS gives each query alone."""
+    rng = np.random.default_rng(seed)
+    C = rng.standard_normal((nlist, 16)).astype(np.float32)
+    C /= np.linalg.norm(C, axis=1, keepdims=True)
+    ivf = InvertedFile(C, np.arange(nlist, dtype=np.int32), np.arange(nlist + 1), 1)
+    Z = rng.standard_normal((n_queries, 16)).astype(np.float32)
+    p = min(nlist, nprobe)
+    with patch.object(inverted_file, "_RANK_BLOCK_ROWS", block):
+        got = ivf.lists(Z, nprobe)
+    alone = np.concatenate([ivf.lists(Z[i : i + 1], nprobe) for i in range(n_queries)])
+    assert got.shape == (n_queries, p) and got.dtype == np.int64
+    S = Z.astype(np.float64) @ C.T.astype(np.float64)
+    for i in range(n_queries):
+        gaps = np.diff(np.sort(S[i])[::-1])
+        if gaps.size and np.abs(gaps).min() < 1e-4:  # near-ties: float32 products may differ
+            continue
+        assert got[i].tolist() == alone[i].tolist()
+
+
+def test_centroids_that_score_alike_rank_the_lower_list_first_in_a_batch() -> None:
+    C = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.0, 1.0]], dtype=np.float32)
+    ivf = InvertedFile(C, np.arange(4, dtype=np.int32), np.arange(5), 1)
+    Z = np.tile(np.array([[1.0, 0.5]], dtype=np.float32), (GEMM_RANK_ROWS, 1))
+    assert ivf.lists(Z, 4).tolist() == [[0, 2, 1, 3]] * GEMM_RANK_ROWS
+    three = ivf.lists(Z, 3).tolist()  # 1 and 3 tie for the last place: either, once
+    assert three[0][:2] == [0, 2] and three[0][2] in (1, 3) and three == [three[0]] * GEMM_RANK_ROWS
 
 
 def test_the_default_lists_and_probes() -> None:
