@@ -91,7 +91,8 @@ def filter_setting(f: dict[str, Any]) -> str:
              f"stops {f['stop_probability']:g}" if f.get("stop_probability") else "no stopped state",
              f"relocalisation {f['relocalization']:g}", f"emission scale {f['emission_scale']:g}"]  # fmt: skip
     if f.get("repeat_novelty"):
-        parts.append(f"repeat novelty {f['repeat_novelty']:g}")
+        reading = "repeats tempered and speed evidence" if f.get("repeat_speed") else "repeats tempered"
+        parts.append(f"{reading} (novelty {f['repeat_novelty']:g})")
     return ", ".join(parts)
 
 
@@ -174,6 +175,7 @@ def plot(report: dict[str, Any], path: Path, split: str = "B") -> Path | None:
     except ImportError:
         return None
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    drawn = {ax1: False, ax2: False}
     for name, m in report["methods"].items():
         f = m["results"]["default"][split]["none"]
         x = m["bytes"]
@@ -181,9 +183,12 @@ def plot(report: dict[str, Any], path: Path, split: str = "B") -> Path | None:
             if key in f:
                 ax1.scatter(x, 100 * f[key]["precision"], marker=marker,
                             color="C0" if key == "whole" else "C1")  # fmt: skip
-        ax1.annotate(name, (x, 100 * f["whole"]["precision"]) if "whole" in f else (x, 0),
-                     fontsize=7, xytext=(3, 3), textcoords="offset points")  # fmt: skip
+                drawn[ax1] = True
+        if "whole" in f or "speed" in f:
+            y = f["whole"]["precision"] if "whole" in f else f["speed"]["precision"]
+            ax1.annotate(name, (x, 100 * y), fontsize=7, xytext=(3, 3), textcoords="offset points")
         if "short" in f:
+            drawn[ax2] = True
             s = f["short"]
             lmax = len(s["curve"])
             y = s["l90"] if s["l90"] is not None else lmax * 1.05
@@ -191,11 +196,17 @@ def plot(report: dict[str, Any], path: Path, split: str = "B") -> Path | None:
             ax2.annotate(name, (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax1.scatter([], [], marker="o", color="C0", label="whole drive")
     ax1.scatter([], [], marker="s", color="C1", label="variable speed + stops")
-    ax1.set(xscale="log", xlabel="map bytes", ylabel=f"precision % (±{report['tolerance']})",
+    ax1.set(xlabel="map bytes", ylabel=f"precision % (±{report['tolerance']})",
             title=f"drives in {split}, filter defaults, no odometry")  # fmt: skip
     ax1.legend(fontsize=8)
-    ax2.set(xscale="log", xlabel="map bytes", ylabel="L90 (frames; ▲ = not reached)",
+    ax2.set(xlabel="map bytes", ylabel="L90 (frames; ▲ = not reached)",
             title="frames to 90 % from a fresh start")  # fmt: skip
+    for ax, missing in ((ax1, "no whole or variable-speed drives"), (ax2, "no short drives")):
+        if drawn[ax]:
+            ax.set_xscale("log")
+        else:  # a run of other protocols: say so instead of an empty log axis
+            ax.text(0.5, 0.5, f"{missing} in this run", ha="center", va="center",
+                    transform=ax.transAxes)
     fig.suptitle(report["data"]["label"], fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

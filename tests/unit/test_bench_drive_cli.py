@@ -72,6 +72,17 @@ def test_the_bench_drives_every_method_through_the_filter(tmp_path: Path) -> Non
     assert again.read_text() == md.read_text() and "code bytes" in stdout
 
 
+def test_a_run_of_one_protocol_writes_its_tables_and_figure(tmp_path: Path) -> None:
+    """Without whole, variable-speed or short drives the figure says so instead of failing
+    on an empty log axis."""
+    out = tmp_path / "traffic.json"
+    code, stdout, stderr = invoke(*SMALL, "--methods", "exact-nn", "--protocols", "traffic",
+                                  "--out", out)  # fmt: skip
+    assert code == 0, stderr
+    assert set(json.loads(out.read_text())["drives"]["B"]) == {"traffic"}
+    assert out.with_suffix(".png").stat().st_size > 1000 and "traffic" in stdout
+
+
 @pytest.mark.parametrize(("args", "needle"), [
     (["--methods", "nope"], "unknown method"),
     (["--protocols", "whole,loop"], "unknown protocol"),
