@@ -35,7 +35,7 @@ FIGURES = {
     "residue_single": 23.9,  # quality.json: lite0-b4, cross, residue, all, single ±5
     "residue_drive": 99.0,  # quality.json: lite0-b4, cross, residue, all, sequence ±5
     "drive_single": 12.1,  # cli-drive: drive_as_sent precision
-    "drive_drive": 97.5,  # cli-drive: drive sequence_precision
+    "drive_drive": 97.6,  # cli-drive: drive sequence_precision
     "drive_code_pct": 4.6,  # cli-drive: ratios drive_code_bytes_vs_robust
 }
 

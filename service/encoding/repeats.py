@@ -18,7 +18,7 @@ than the true frame win a long stop by repetition. The filter reads the repetiti
   and the weight of the frame's evidence in a stopped state ``w = 1 − r``: a repeat adds
   nothing to a stopped vehicle's belief about its place (its view was counted when it was
   new); a moving state takes the evidence whole.
-- **speed evidence**: a vehicle at speed ``v`` sends a repeated view with probability
+- **speed evidence** (only with ``repeat_speed``): a vehicle at speed ``v`` sends a repeated view with probability
   ``p(v) = repeat_stopped · (1 − |v|) + repeat_moving · |v|`` for ``|v| < 1`` (a slow vehicle's
   consecutive views overlap) and ``repeat_moving`` from one frame per query frame on. A
   frame's novelty reads as a repeat (weight ``r``), a new view (weight ``u``: 0 up to
@@ -28,11 +28,13 @@ than the true frame win a long stop by repetition. The filter reads the repetiti
 A frame that comes with odometry is read as new: the measured displacement moves every state,
 so the speed states say nothing about the motion and a stopped state is not held in place.
 
-``repeat_novelty = 0`` (the default) turns both off: every frame is new evidence for every
-state. Measured on Nordland (``docs/RESULTS.md``, "Drives"): with ``repeat_novelty = 1e-3`` a
-stop's repeated or near-identical (3 % descriptor noise) frames are followed better by every
-method, but a new view is then evidence against stopping, and a stopped camera whose frames
-differ more (30 % descriptor noise) is driven out of its stop: off by default.
+``repeat_novelty = 0`` turns both off: every frame is new evidence for every state. Measured
+on Nordland (``docs/RESULTS.md``, "Drives"): the default (``repeat_novelty = 1e-3``, tempering
+only) follows a stop's repeated or near-identical (3 % descriptor noise) frames better with
+every method and leaves a stop whose frames differ more (30 % descriptor noise) as it was;
+``repeat_speed`` follows the repeated stops better still, but a new view is then evidence
+against stopping, and a stopped camera whose frames differ by 30 % noise is driven out of its
+stop: off by default.
 """
 
 from __future__ import annotations
@@ -100,6 +102,8 @@ class RepeatDetector:
         step = 1.0 - float(z @ z1) / z.size  # a one-frame move's change of the scores
         novelty = (1.0 - float(z @ previous) / z.size) / max(step, 1e-9)
         r = min(1.0, max(0.0, 1.0 - novelty / scale))
+        if not self.config.repeat_speed:
+            return Repeat(1.0 - r, None) if r > 0.0 else NEW
         half = 0.5 * self.config.move_novelty
         u = min(1.0 - r, max(0.0, (novelty - half) / half)) if half > 0 else 1.0 - r
         p = self._p

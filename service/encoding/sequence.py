@@ -16,7 +16,7 @@ The filter is the forward pass of a hidden Markov model whose state is ``(speed,
   chunked model's top chunks) gets the lowest score the model gave, so one query cannot veto.
 - **repeated views** (:mod:`service.encoding.repeats`): a frame whose scores over the route
   are nearly the previous frame's (a stopped vehicle's camera) adds little to a stopped state's
-  belief about its place, and is evidence of a low speed.
+  belief about its place (and, with ``repeat_speed``, is evidence of a low speed).
 
 One update costs ``O(S·N)`` for ``S`` states (:attr:`SequenceConfig.n_states`; a few array
 passes, nothing depends on how many frames came before). A vehicle holds its ``(S, N)``

@@ -57,6 +57,11 @@ class SequenceFilterOptions(Request):
         description="novelty of a frame's scores over the previous frame's, in one-frame moves, "
         "below which it repeats the previous view, softly (0: off, every frame is new evidence)",
     )
+    repeat_speed: bool | None = Field(
+        None,
+        description="repeats and new views are also evidence of the speed (repeat_stopped, "
+        "repeat_moving, move_novelty); off: a repeat only tempers a stopped state's evidence",
+    )
     move_novelty: float | None = Field(
         None, ge=0.0, le=100.0,
         description="novelty from which a frame is a new view, evidence of moving (half of it "

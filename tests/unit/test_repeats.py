@@ -1,5 +1,5 @@
-"""Repeated views in the sequence filter: a stop's repeats are not new evidence of the place,
-and are evidence of a low speed (SYNTHETIC scores)."""
+"""Repeated views in the sequence filter: a stop's repeats are not new evidence of the place
+(the default), and with ``repeat_speed`` evidence of a low speed (SYNTHETIC scores)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ from service.encoding.sequence import (
 from service.encoding.tracking import track_scores
 
 N = 600
-CONFIG = SequenceConfig(repeat_novelty=1e-3)  # repeats read (off by default)
+CONFIG = SequenceConfig(repeat_novelty=1e-3, repeat_speed=True)  # repeats read, speed too
+OFF = SequenceConfig(repeat_novelty=0.0)  # every frame new evidence
 SPEEDS = MotionModel(CONFIG).speeds
 finite_rows = arrays(np.float64, st.integers(8, 64),
                      elements=st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False))  # fmt: skip
@@ -67,9 +68,32 @@ def test_a_stop_is_not_dragged_to_an_alias_by_its_repeated_view(copy_noise: floa
     stop = slice(200, 260)  # the stop and the 30 frames after it
     got = filter_sequence(S, CONFIG).index
     assert (np.abs(got[stop] - truth[stop]) <= 5).mean() == 1.0
-    # every repeat as new evidence (the default): the belief goes to the alias during the stop
-    old = filter_sequence(S).index
+    # every repeat as new evidence: the belief goes to the alias during the stop
+    old = filter_sequence(S, OFF).index
     assert (np.abs(old[stop] - truth[stop]) <= 5).mean() < 0.9
+
+
+@pytest.mark.parametrize("copy_noise", [0.0, 1e-3])
+def test_the_default_tempers_a_stops_repeats_without_reading_the_speed(copy_noise: float) -> None:
+    S, truth = stop_at_an_alias(copy_noise)
+    default = SequenceConfig()
+    assert default.repeat_novelty > 0 and not default.repeat_speed
+    for tracking in (False, True):
+        got = filter_sequence(S, default.model_copy(update={"tracking": tracking})).index
+        assert (np.abs(got[200:260] - truth[200:260]) <= 5).mean() == 1.0, tracking
+    det = RepeatDetector(SPEEDS, default)
+    row = np.random.default_rng(0).normal(size=256)
+    observe(det, row)
+    assert observe(det, row.copy()) == Repeat(0.0, None)  # a repeat: no place evidence, no speed
+    assert observe(det, np.random.default_rng(1).normal(size=256)) is NEW
+
+
+def test_a_stop_whose_frames_differ_is_read_by_the_default_as_without_repeats() -> None:
+    """A stopped camera whose frames differ more than a one-frame move's change of the scores
+    sends new views: the default reads them as every frame new, where the speed reading counts
+    them against stopping."""
+    S, _ = stop_at_an_alias(0.5)
+    np.testing.assert_array_equal(filter_sequence(S).index, filter_sequence(S, OFF).index)
 
 
 def test_the_windowed_tracker_reads_repeats_as_the_whole_filter_does() -> None:
@@ -98,7 +122,7 @@ def test_a_repeat_weighs_stopping_and_a_new_view_moving() -> None:
 
 
 def test_repeats_off_make_every_frame_new_evidence() -> None:
-    det = RepeatDetector(SPEEDS, SequenceConfig())
+    det = RepeatDetector(SPEEDS, OFF)
     row = np.arange(10.0)
     assert observe(det, row) is NEW and observe(det, row) is NEW
 
@@ -111,7 +135,7 @@ def test_novelty_is_measured_in_one_frame_moves_of_the_scores() -> None:
     for width in (1.0, 8.0):
         kernel = np.exp(-0.5 * (np.arange(-25, 26) / width) ** 2)
         row = np.convolve(rng.normal(size=600), kernel, mode="same")
-        cfg = SequenceConfig(repeat_novelty=1.0)  # r = 1 − novelty, in one-frame moves
+        cfg = SequenceConfig(repeat_novelty=1.0, repeat_speed=True)  # r = 1 − novelty
         det = RepeatDetector(SPEEDS, cfg)
         observe(det, row)
         moved = observe(det, np.roll(row, 1))  # the query one frame further on
@@ -119,7 +143,7 @@ def test_novelty_is_measured_in_one_frame_moves_of_the_scores() -> None:
 
 
 def test_a_view_between_a_repeat_and_a_move_is_no_evidence_with_move_novelty() -> None:
-    cfg = SequenceConfig(repeat_novelty=1e-3, move_novelty=0.2)
+    cfg = SequenceConfig(repeat_novelty=1e-3, repeat_speed=True, move_novelty=0.2)
     rng = np.random.default_rng(5)
     kernel = np.exp(-0.5 * (np.arange(-25, 26) / 4.0) ** 2)
     row = np.convolve(rng.normal(size=600), kernel, mode="same")
