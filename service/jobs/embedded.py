@@ -267,13 +267,16 @@ class EmbeddedBackend:
 def _terminate(pool: ProcessPoolExecutor) -> None:
     """Stop a pool now, killing tasks in progress (their jobs are already marked failed)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API
+    # taken before shutdown(), which drops the pool's reference to it
+    manager = getattr(pool, "_executor_manager_thread", None)  # no public API
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         proc.terminate()
     # Let the pool's manager thread see its processes gone and close its wake-up pipe now:
     # left running, it races at interpreter exit with concurrent.futures' own exit hook,
     # which writes to that pipe (CPython 3.11: "OSError: Bad file descriptor", printed as
-    # an ignored exception on every graceful shutdown that lost the race).
-    manager = getattr(pool, "_executor_manager_thread", None)  # no public API
+    # an ignored exception on a graceful shutdown that lost the race).
     if manager is not None:
         manager.join(timeout=10.0)
+        if manager.is_alive():
+            log.warning("the training pool's manager thread did not stop within 10 s")

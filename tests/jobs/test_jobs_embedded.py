@@ -184,3 +184,22 @@ def test_a_stuck_job_never_blocks_a_reupload(data_dir, registry, route_file, wai
         assert b.get_job(lost.id).state == "failed"  # polling reconciles it too
     finally:
         b.close()
+
+
+def test_stopping_the_pool_closes_its_manager_threads_wakeup_before_exit() -> None:
+    """The pool's manager thread is joined once its processes are stopped, so its wake-up
+    pipe is closed before concurrent.futures' exit hook writes to it (CPython 3.11 races
+    there: "OSError: Bad file descriptor" at a graceful shutdown)."""
+    import multiprocessing as mp
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from service.jobs.embedded import _terminate
+
+    pool = ProcessPoolExecutor(1, mp_context=mp.get_context("forkserver"))
+    assert pool.submit(os.getpid).result(timeout=60) != os.getpid()
+    manager = pool._executor_manager_thread
+    assert manager is not None and manager.is_alive()
+    _terminate(pool)
+    assert not manager.is_alive()
+    assert manager.thread_wakeup._closed  # the exit hook's wakeup() is a no-op now
