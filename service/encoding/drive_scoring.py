@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from service.encoding.phases import index_to_labels
+from service.encoding.repeats import successors
 from service.encoding.sequence import check_scores
 
 SAMPLE = 256  # frames whose scores estimate a query's spread over the route
@@ -59,6 +60,10 @@ class RowScorer:
     def sample_scores(self, prep: Any) -> np.ndarray:
         """Scores of the frames that stand for the route (:func:`route_sample`)."""
         return prep[route_sample(self.n_frames)]  # type: ignore[no-any-return]
+
+    def next_scores(self, prep: Any) -> np.ndarray:
+        """Scores of the frames after the route sample's (a query's repetition test)."""
+        return self.frames(prep, successors(route_sample(self.n_frames), self.n_frames))
 
     def candidates(self, prep: Any, m: int) -> np.ndarray:
         row = np.where(np.isfinite(prep), prep, -np.inf)
@@ -124,10 +129,14 @@ class CodeScorer:
             np.searchsorted(lab[o], np.arange(dg.n_classes + 1))
             for lab, o, dg in zip(self.labels, self.order, self.digits, strict=True)
         ]
-        # the sample's classes per digit, their rows gathered once: a query's spread over the
-        # route is one small contiguous product per digit, not a gather across the whole code
-        self._sample = [_Rows.of(dg, lab[self.sample])
-                        for dg, lab in zip(self.digits, self.labels, strict=True)]  # fmt: skip
+        # the sample's classes per digit (and those of the frames after them, for the repetition
+        # test), their rows gathered once: a query's spread over the route is one small
+        # contiguous product per digit, not a gather across the whole code
+        self._sample = self._gathered(self.sample)
+        self._next = self._gathered(successors(self.sample, self.n_frames))
+
+    def _gathered(self, frames: np.ndarray) -> list[_Rows]:
+        return [_Rows.of(dg, lab[frames]) for dg, lab in zip(self.digits, self.labels, strict=True)]
 
     @property
     def check_cost(self) -> int:
@@ -182,16 +191,26 @@ class CodeScorer:
         """Scores of the route's sample frames (:func:`route_sample`), computed once per query
         (read-only: a tracker asks for them several times a frame)."""
         if prep.sample is None:
-            out = np.zeros(self.sample.size)
-            for j, rows in enumerate(self._sample):
-                full = prep.full[j]
-                if full is not None:
-                    out += full[rows.classes[rows.inverse]]
-                else:
-                    out += rows.scores(self.digits[j], prep.z[j])[rows.inverse]
+            out = self._fixed_scores(prep, self._sample)
             out.flags.writeable = False
             prep.sample = out
         return prep.sample
+
+    def next_scores(self, prep: Any) -> np.ndarray:
+        """Scores of the frames after the route sample's (a query's repetition test), from
+        their classes' rows gathered once."""
+        return self._fixed_scores(prep, self._next)
+
+    def _fixed_scores(self, prep: _Prepared, gathered: list[_Rows]) -> np.ndarray:
+        """Scores of a fixed set of frames whose classes' rows are ``gathered`` per digit."""
+        out = np.zeros(gathered[0].inverse.size)
+        for j, rows in enumerate(gathered):
+            full = prep.full[j]
+            if full is not None:
+                out += full[rows.classes[rows.inverse]]
+            else:
+                out += rows.scores(self.digits[j], prep.z[j])[rows.inverse]
+        return out
 
     def candidates(self, prep: Any, m: int) -> np.ndarray:
         pools = []

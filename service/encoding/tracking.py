@@ -39,9 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from service.encoding.drive_scoring import route_sample
 from service.encoding.motion import MotionModel
-from service.encoding.repeats import Repeat, RepeatDetector, successors
+from service.encoding.repeats import Repeat, RepeatDetector
 from service.encoding.sequence import (
     _MIN_LOG_LIKELIHOOD,
     SequenceEstimate,
@@ -91,7 +90,6 @@ class DriveTracker:
         # windows never hold more than the whole route's state (plus a check's candidates)
         self.max_windows = max(1, min(self.config.window_frames, self.n_frames) // self.width)
         self.repeats = RepeatDetector(self.speeds, self.config)
-        self.next_frames = successors(route_sample(self.n_frames), self.n_frames)
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -182,7 +180,7 @@ class DriveTracker:
         recent = list(self.recent)
         repeat = self.repeats.measure(odometry, lambda: (
             np.asarray(self.scorer.sample_scores(prep)),
-            np.asarray(self.scorer.frames(prep, self.next_frames))))  # fmt: skip
+            np.asarray(self.scorer.next_scores(prep))))  # fmt: skip
         self.recent.append((prep, odometry, repeat))
         budget = float(self.config.whole_route_budget)
         self.credit = min(self.credit + budget, max(budget, BANKED * self.whole_cost))

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from service.encoding.drive_scoring import CodeScorer, MatrixScorer, drive_scorer, route_sample
 from service.encoding.encoder import PhaseEncoder
+from service.encoding.repeats import successors
 from service.encoding.sequence import (
     SequenceConfig,
     SequenceFilter,
@@ -179,8 +180,12 @@ def test_the_code_scorer_agrees_with_the_models_frame_scores() -> None:
     scorer = drive_scorer(model)
     assert isinstance(scorer, CodeScorer) and drive_scorer(model) is scorer
     S = model.frame_log_scores(route.query[:20])
+    after = successors(route_sample(600), 600)
     for t, prep in enumerate(scorer.prepare_many(route.query[:20])):
+        nxt = scorer.next_scores(prep)  # from the gathered rows: no class scores yet
         full = scorer.full(prep)
+        np.testing.assert_allclose(nxt, full[after], atol=1e-9)
+        np.testing.assert_allclose(scorer.next_scores(prep), full[after], atol=1e-9)
         offset = S[t] - full
         np.testing.assert_allclose(offset, offset[0], atol=1e-4)  # a constant per query
         idx = np.array([0, 5, 599, 300])
