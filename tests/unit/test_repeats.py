@@ -80,7 +80,12 @@ def test_the_default_tempers_a_stops_repeats_without_reading_the_speed(copy_nois
     assert default.repeat_novelty > 0 and not default.repeat_speed
     for tracking in (False, True):
         got = filter_sequence(S, default.model_copy(update={"tracking": tracking})).index
-        assert (np.abs(got[200:260] - truth[200:260]) <= 5).mean() == 1.0, tracking
+        # arriving, the belief may coast a frame past ±5 before it holds; it never reaches the
+        # alias, where every repeat as new evidence takes it
+        assert (np.abs(got[200:260] - truth[200:260]) <= 5).mean() >= 0.95, tracking
+        assert not (np.abs(got[200:230] - 320) <= 5).any(), tracking
+    old = filter_sequence(S, OFF).index
+    assert (np.abs(old[200:230] - 320) <= 5).any()
     det = RepeatDetector(SPEEDS, default)
     row = np.random.default_rng(0).normal(size=256)
     observe(det, row)
