@@ -29,13 +29,13 @@ FIGURES = {
     "exact_nn_single": 41.4,  # cli-defaults: exact_nn single_p5
     "nn_pca256_single": 43.5,  # quality.json: lite0-b4, cross, nn-pca256, all, single ±5
     "robust_adapted": 53.4,  # cli-defaults-adapted: gridplace adapted single_p5
-    "robust_drive": 98.9,  # cli-drive: robust sequence_precision (this filter's defaults)
+    "robust_drive": 99.0,  # cli-drive: robust sequence_precision (this filter's defaults)
     "robust_storage_pct": 3.1,  # cli-defaults: ratios storage_vs_exact_nn
     "paper_single": 1.9,  # quality.json: lite0-b4, cross, paper, all, single ±5
     "residue_single": 23.9,  # quality.json: lite0-b4, cross, residue, all, single ±5
     "residue_drive": 99.0,  # quality.json: lite0-b4, cross, residue, all, sequence ±5
     "drive_single": 12.1,  # cli-drive: drive_as_sent precision
-    "drive_drive": 97.6,  # cli-drive: drive sequence_precision
+    "drive_drive": 98.4,  # cli-drive: drive sequence_precision
     "drive_code_pct": 4.6,  # cli-drive: ratios drive_code_bytes_vs_robust
 }
 

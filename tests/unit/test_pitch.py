@@ -68,7 +68,7 @@ def test_the_figures_are_the_measured_ones() -> None:
 
     assert FIGURES["robust_single"] == pct(cli["gridplace"]["single_p5"])
     assert FIGURES["exact_nn_single"] == pct(cli["exact_nn"]["single_p5"])
-    drive = json.loads((BENCH / "cli-drive-nordland-2026-12-06.json").read_text())
+    drive = json.loads((BENCH / "cli-drive-nordland-stop-probability-2026-12-06.json").read_text())
     assert FIGURES["robust_drive"] == pct(drive["robust"]["sequence_precision"])
     assert FIGURES["drive_drive"] == pct(drive["drive"]["sequence_precision"])
     assert FIGURES["drive_single"] == pct(drive["drive_as_sent"]["precision"])
