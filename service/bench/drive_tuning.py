@@ -1,7 +1,8 @@
 """``gridplace bench drive --tune``: the filter's parameters chosen on half A's drives.
 
 Every configuration of the grid (the base configuration with ``emission_scale``,
-``stop_probability``, ``relocalization`` and ``speed_change`` replaced) drives every A drive
+``stop_probability``, ``relocalization`` and ``speed_change`` replaced, and ``speed_jump`` or
+``start_probability`` where ``--grid`` names them) drives every A drive
 of every method without odometry. The objective is the mean, over the protocols, of their
 precision within ±5 frames (a short drive counts every one of its frames; a kidnap counts its
 frames before and after the jump). ``per-method`` picks each method's best; ``shared`` the
@@ -23,7 +24,10 @@ from service.encoding.sequence import SequenceConfig
 from service.errors import InvalidParameterError
 
 TUNE_MODES: tuple[str, ...] = ("off", "shared", "per-method")
-TUNED: tuple[str, ...] = ("emission_scale", "stop_probability", "relocalization", "speed_change")
+TUNED: tuple[str, ...] = (
+    "emission_scale", "stop_probability", "relocalization", "speed_change", "speed_jump",
+    "start_probability",
+)  # fmt: skip
 DEFAULT_GRID: dict[str, tuple[float, ...]] = {
     "emission_scale": (0.05, 0.1, 0.2, 0.4),
     "stop_probability": (0.0, 0.02),
@@ -33,7 +37,8 @@ DEFAULT_GRID: dict[str, tuple[float, ...]] = {
 
 
 def parse_grid(items: list[str] | None) -> dict[str, tuple[float, ...]]:
-    """``--grid KEY=V1,V2,…`` options over :data:`DEFAULT_GRID` (the keys of :data:`TUNED`)."""
+    """``--grid KEY=V1,V2,…`` options over :data:`DEFAULT_GRID` (the keys of :data:`TUNED`; a
+    key outside the default grid adds a dimension)."""
     grid = dict(DEFAULT_GRID)
     for item in items or []:
         key, sep, values = item.partition("=")

@@ -73,7 +73,8 @@ def bench_drive(
     tune: Annotated[str, typer.Option(help="off | shared | per-method: grid search on half A")] = "off",
     grid: Annotated[list[str] | None, typer.Option(
         "--grid", metavar="KEY=V1,V2", help="tuning grid values (emission_scale, "
-        "stop_probability, relocalization, speed_change)")] = None,
+        "stop_probability, relocalization, speed_change; speed_jump, start_probability add a "
+        "dimension)")] = None,
     seed: Annotated[int, typer.Option(help="seed of every drive generator")] = 0,
     patch: Annotated[int, typer.Option(help="patchnorm patch side for pixel datasets")] = 16,
     out: Annotated[Path | None, typer.Option(help="JSON (default docs/benchmarks/drive-DATE.json)")] = None,

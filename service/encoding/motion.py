@@ -5,7 +5,8 @@ two query frames.
   frame (mirrored to negative speeds with ``reverse``), plus a **stopped** state (speed 0) per
   direction when ``stop_probability > 0``. Each frame the speed stays, or with probability
   ``speed_change`` moves to a neighbouring grid speed (a random walk with reflecting ends: the
-  vehicle accelerates gradually); a moving vehicle stops with ``stop_probability`` and a
+  vehicle accelerates gradually), and with probability ``speed_jump`` moves to any speed of
+  its direction (an abrupt change, or frames the camera dropped); a moving vehicle stops with ``stop_probability`` and a
   stopped one moves on with ``start_probability``, to any speed of the direction it was
   driving in (a vehicle that waits at a light drives on the way it came); with ``reverse``,
   ``direction_change`` flips the sign (and a stopped vehicle's direction).
@@ -130,6 +131,12 @@ class MotionModel:
                 else:
                     dst += src
                     dst += src
+        jump = cfg.speed_jump
+        if jump > 0:  # an abrupt change: to any speed of the same direction, evenly
+            for block in self.blocks:
+                moving = out[block].sum(axis=0)
+                out[block] *= np.float32(1.0 - jump)
+                out[block] += moving * np.float32(jump / (block.stop - block.start))
         go, halt = cfg.start_probability, cfg.stop_probability
         for stop, block in zip(self.stops, self.blocks, strict=False):  # each direction's stop
             stopped = np.multiply(post[stop], np.float32(scale), out=tmp[stop])

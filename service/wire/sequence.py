@@ -33,6 +33,11 @@ class SequenceFilterOptions(Request):
     speed_change: float | None = Field(
         None, ge=0.0, le=1.0, description="probability per frame of moving to a neighbouring speed"
     )
+    speed_jump: float | None = Field(
+        None, ge=0.0, le=1.0,
+        description="probability per frame of moving to any speed of the direction driven "
+        "(abrupt speed changes, dropped frames; 0: speeds change only by neighbouring steps)",
+    )
     reverse: bool | None = Field(None, description="the vehicle may drive the route backwards")
     direction_change: float | None = Field(
         None, ge=0.0, le=1.0, description="probability per frame of reversing (with reverse)"
@@ -112,7 +117,7 @@ class SequenceFilterOptions(Request):
     )
 
     _numbers = field_validator(
-        "min_speed", "max_speed", "speed_step", "speed_change", "direction_change",
+        "min_speed", "max_speed", "speed_step", "speed_change", "speed_jump", "direction_change",
         "stop_probability", "start_probability", "relocalization", "emission_scale",
         "repeat_novelty", "move_novelty", "repeat_stopped", "repeat_moving",
         "confidence_radius", mode="before",

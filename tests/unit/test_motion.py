@@ -84,3 +84,41 @@ def test_prediction_keeps_the_mass_away_from_the_ends(
     out = predict(model, state)
     assert (out >= 0).all()
     assert out.sum(dtype=np.float64) == pytest.approx(state.sum(dtype=np.float64), rel=1e-5)
+
+
+@pytest.mark.parametrize("direction", [0, 1])
+def test_a_speed_jump_reaches_every_speed_of_the_direction_at_once(direction: int) -> None:
+    """With ``speed_jump``, mass at one speed spreads to every speed of its direction in one
+    frame (evenly, that share), never to the other direction; without it, only to the
+    neighbours."""
+    jump = 0.2
+    for config, spread in ((SequenceConfig(speed_jump=jump, stop_probability=0.0,
+                                           direction_change=0.0, speed_change=0.0), True),
+                           (SequenceConfig(speed_jump=0.0, stop_probability=0.0,
+                                           direction_change=0.0), False)):
+        model = MotionModel(config)
+        block = model.blocks[direction]
+        state = np.zeros((model.n_states, W), dtype=np.float32)
+        state[block.start, W // 2] = 1.0  # the direction's first grid speed
+        out = predict(model, state)
+        per_speed = out.sum(axis=1)
+        n = block.stop - block.start
+        assert per_speed[model.blocks[1 - direction]].sum() == 0.0
+        assert per_speed.sum() == pytest.approx(1.0, rel=1e-6)
+        if spread:
+            assert per_speed[block.start] == pytest.approx(1 - jump + jump / n, rel=1e-5)
+            assert per_speed[block.start + 1 : block.stop] == pytest.approx(
+                np.full(n - 1, jump / n), rel=1e-5)
+        else:
+            assert (per_speed[block.start + 2 : block.stop] == 0).all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(jump=st.floats(0.0, 1.0), stop=st.sampled_from([0.0, 0.02]), seed=st.integers(0, 2**16))
+def test_a_speed_jump_keeps_the_mass(jump: float, stop: float, seed: int) -> None:
+    model = MotionModel(SequenceConfig(speed_jump=jump, stop_probability=stop))
+    state = np.zeros((model.n_states, W), dtype=np.float32)
+    state[:, 10:-10] = np.random.default_rng(seed).random((model.n_states, W - 20))
+    out = predict(model, state)
+    assert (out >= 0).all()
+    assert out.sum(dtype=np.float64) == pytest.approx(state.sum(dtype=np.float64), rel=1e-5)

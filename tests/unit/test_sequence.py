@@ -123,7 +123,7 @@ def test_a_stopped_state_holds_the_vehicle_where_it_stands() -> None:
     truth = np.concatenate([np.arange(100, 200), np.full(60, 200), np.arange(200, 300)])
     S = scores_along(truth, width=3.0, noise=0.2, seed=4)
     with_stop = SequenceConfig(stop_probability=0.01, reverse=False)
-    moving = SequenceConfig(stop_probability=0.0, reverse=False)
+    moving = SequenceConfig(stop_probability=0.0, reverse=False, speed_jump=0.0)
     held, moving_only = (np.abs(track(S, c) - truth) <= 2 for c in (with_stop, moving))
     assert held[100:160].mean() > 0.6 and moving_only[100:160].mean() < 0.1  # during the stop
     assert held[160:].mean() > 0.95 > moving_only[160:].mean()  # and after it

@@ -89,9 +89,14 @@ def test_stops_and_speed_changes_are_followed_by_default() -> None:
     S = bumps(truth, noise=0.5, seed=4)
     got = filter_sequence(S)
     assert within(got.index[20:], truth[20:]).mean() > 0.9
-    # the former defaults: forwards only, no stopped state, rare speed changes
-    no_stops = SequenceConfig(stop_probability=0.0, reverse=False, speed_change=0.01)
-    assert within(filter_sequence(S, no_stops).index[20:], truth[20:]).mean() < 0.7
+    # the former defaults: forwards only, no stopped state, rare speed changes by steps only
+    no_stops = SequenceConfig(stop_probability=0.0, reverse=False, speed_change=0.01,
+                              speed_jump=0.0)  # fmt: skip
+    stepping = within(filter_sequence(S, no_stops).index[20:], truth[20:]).mean()
+    assert stepping < 0.7
+    # speed jumps alone take the belief back to the vehicle's speed after each stop sooner
+    jumping = no_stops.model_copy(update={"speed_jump": 0.01})
+    assert within(filter_sequence(S, jumping).index[20:], truth[20:]).mean() > stepping + 0.1
 
 
 def test_a_noiseless_drive_with_exact_odometry_is_tracked_exactly_without_evidence() -> None:
