@@ -6,10 +6,10 @@ two query frames.
   direction when ``stop_probability > 0``. Each frame the speed stays, or with probability
   ``speed_change`` moves to a neighbouring grid speed (a random walk with reflecting ends: the
   vehicle accelerates gradually), and with probability ``speed_jump`` moves to any speed of
-  its direction (an abrupt change, or frames the camera dropped); a moving vehicle stops with ``stop_probability`` and a
-  stopped one moves on with ``start_probability``, to any speed of the direction it was
-  driving in (a vehicle that waits at a light drives on the way it came); with ``reverse``,
-  ``direction_change`` flips the sign (and a stopped vehicle's direction).
+  its direction (an abrupt change, or frames the camera dropped); a moving vehicle stops with
+  ``stop_probability`` and a stopped one moves on with ``start_probability``, to any speed of
+  the direction it was driving in (a vehicle that waits at a light drives on the way it came);
+  with ``reverse``, ``direction_change`` flips the sign (and a stopped vehicle's direction).
 - **motion**: a state at frame ``i`` with speed ``v`` moves to ``i + v`` (a fractional ``v``
   splits its mass between the two nearest frames). Mass driven off the array's ends leaves it.
 - **odometry** (path integration): a frame that comes with a measured displacement ``u``

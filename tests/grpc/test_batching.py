@@ -48,19 +48,17 @@ def test_concurrent_unary_calls_share_batches_and_answer_as_alone(served: Served
     bad = {17, 18, 101, 202}
     before = batches_above_one(served)
 
-    in_flight: asyncio.Semaphore
+    in_flight = asyncio.Semaphore(96)  # below the server's limit of 128 public requests
 
     async def call(stub: pb_grpc.LocalizationStub, i: int) -> pb.LocalizeResponse | grpc.aio.AioRpcError:
         data = bad_descriptor(i) if i in bad else f32(served.query[rows[i]])
-        async with in_flight:  # below the server's limit of 128 public requests, at any load
+        async with in_flight:  # at any load: more in flight would be refused
             try:
                 return await stub.Localize(pb.LocalizeRequest(map="route", descriptor=data))
             except grpc.aio.AioRpcError as exc:
                 return exc
 
     async def go() -> list[pb.LocalizeResponse | grpc.aio.AioRpcError]:
-        nonlocal in_flight
-        in_flight = asyncio.Semaphore(96)
         async with grpc.aio.insecure_channel(served.target) as channel:
             stub = pb_grpc.LocalizationStub(channel)
             return list(await asyncio.gather(*(call(stub, i) for i in range(len(rows)))))
