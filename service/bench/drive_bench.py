@@ -134,6 +134,7 @@ def evaluate(scores: np.ndarray, drives: dict[str, list[dp.Drive]], config: Sequ
         truths = [d.truth for d in ds]
         m: dict[str, Any] = {"drives": len(ds), "frames": frames,
                              "precision": dm.precision(preds, truths),
+                             "interval95": dm.precision_interval(preds, truths, seed=seed),
                              "us_per_frame": 1e6 * (time.perf_counter() - start) / frames}  # fmt: skip
         if p == "short":
             curve = dm.precision_after(preds, truths)

@@ -11,7 +11,7 @@ from rich.table import Table
 SHORT_AT = (10, 50)  # precision of short drives after this many frames, in the tables
 FIXED_PARTS = ("projection", "normalization", "masks")  # parts that do not grow with the route
 COLUMNS = ("method", "map bytes", "code bytes", "single", "whole", "L90", "short@10", "short@50",
-           "speed+stops", "traffic", "kidnap: median (p90), never",
+           "speed+stops (95 % interval)", "traffic (95 % interval)", "kidnap: median (p90), never",
            "reverse (reverse filter)")  # fmt: skip
 
 
@@ -31,6 +31,12 @@ def code_bytes(method: dict[str, Any]) -> int:
 
 def _pct(p: float | None) -> str:
     return "–" if p is None else f"{100 * p:.1f}"
+
+
+def _pct_ci(m: dict[str, Any]) -> str:
+    """A protocol's precision with its 95 % interval over the drives, where it has one."""
+    ci = m.get("interval95")
+    return f"{_pct(m['precision'])} ({_pct(ci[0])}–{_pct(ci[1])})" if ci else _pct(m["precision"])
 
 
 def _l90(short: dict[str, Any] | None) -> str:
@@ -75,8 +81,8 @@ def rows(report: dict[str, Any], config: str, split: str) -> list[tuple[list[str
             label, _bytes(m["bytes"]), _bytes(code_bytes(m)), _pct(m["single"][split]),
             _pct(f["whole"]["precision"]) if "whole" in f else "–", _l90(short),
             *(_pct(curve[at - 1]) if len(curve) >= at else "–" for at in SHORT_AT),
-            _pct(f["speed"]["precision"]) if "speed" in f else "–",
-            _pct(f["traffic"]["precision"]) if "traffic" in f else "–", _kidnap(f.get("kidnap")),
+            _pct_ci(f["speed"]) if "speed" in f else "–",
+            _pct_ci(f["traffic"]) if "traffic" in f else "–", _kidnap(f.get("kidnap")),
             f"{_pct(rev['precision'])} ({_pct(rev['precision_reverse_filter'])})" if rev else "–",
         ]  # fmt: skip
         odo = _odometry_cells(res)

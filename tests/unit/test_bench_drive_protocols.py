@@ -151,3 +151,31 @@ def test_traffic_drives_index_the_copies_with_the_recorded_truth(seed: int) -> N
         assert d.rows.max() < 4000 * (dp.COPIES + 1) and recorded.min() >= 100
         assert np.array_equal(d.truth, truth[recorded])
         assert np.diff(recorded).min() >= 0 and (np.diff(recorded) == 0).any()  # it stops
+
+
+def test_precision_interval_resamples_whole_drives() -> None:
+    truths = [np.arange(100), np.arange(100), np.arange(50)]
+    perfect = [t.copy() for t in truths]
+    assert dm.precision_interval(perfect, truths) == (1.0, 1.0)
+    assert dm.precision_interval(perfect[:1], truths[:1]) is None  # one drive: no interval
+    # one drive all wrong, two all right: an interval around the pooled 150/250, inside [0, 1],
+    # whose ends are pooled precisions of some resample of the drives
+    mixed = [truths[0] + 50, truths[1], truths[2]]
+    lo, hi = dm.precision_interval(mixed, truths, resamples=4000, seed=3)  # type: ignore[misc]
+    assert 0.0 <= lo < dm.precision(mixed, truths) < hi <= 1.0
+    assert dm.precision_interval(mixed, truths, resamples=4000, seed=3) == (lo, hi)  # seeded
+    assert dm.precision_interval(mixed, truths, level=0.5) is not None
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 40), st.integers(0, 40)), min_size=2, max_size=8),
+       st.integers(0, 2**31 - 1))  # fmt: skip
+def test_precision_interval_brackets_the_drives_precisions(drives: list[tuple[int, int]],
+                                                           seed: int) -> None:  # fmt: skip
+    """Every resample pools some of the drives, so the interval lies between the lowest and
+    the highest precision of a single drive."""
+    truths = [np.arange(n) for n, _ in drives]
+    preds = [np.where(np.arange(n) < min(k, n), np.arange(n), np.arange(n) + 99) for n, k in drives]
+    per_drive = [dm.precision([p], [t]) for p, t in zip(preds, truths, strict=True)]
+    lo, hi = dm.precision_interval(preds, truths, resamples=200, seed=seed)  # type: ignore[misc]
+    assert min(per_drive) - 1e-12 <= lo <= hi <= max(per_drive) + 1e-12
