@@ -1,6 +1,6 @@
 """What ``gridplace bench drive`` reports of the tracks it gets: precision within ``±tol``
-frames (with a bootstrap interval over the drives: which drives a seed draws moves a figure
-of 30 drives by a point or two), precision after ``L`` frames over many short drives and the
+frames (with a bootstrap interval over the drives: which 30 drives a seed draws moves a figure
+by two points or more), precision after ``L`` frames over many short drives and the
 first ``L`` that reaches a target (``L90``), and the frames a kidnapped vehicle takes to be
 found again."""
 
@@ -24,9 +24,16 @@ def correct(pred: np.ndarray, truth: np.ndarray, tol: int = TOLERANCE) -> np.nda
 def precision(preds: Sequence[np.ndarray], truths: Sequence[np.ndarray],
               tol: int = TOLERANCE) -> float:  # fmt: skip
     """Share of all frames of all drives within ``±tol`` (drives pooled by frames)."""
-    hits = sum(int(correct(p, t, tol).sum()) for p, t in zip(preds, truths, strict=True))
-    frames = sum(int(np.asarray(t).size) for t in truths)
-    return hits / frames if frames else float("nan")
+    hits, frames = _per_drive(preds, truths, tol)
+    return float(hits.sum() / frames.sum()) if frames.sum() else float("nan")
+
+
+def _per_drive(preds: Sequence[np.ndarray], truths: Sequence[np.ndarray],
+               tol: int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each drive's frames within ``±tol`` and its frames, as float64 arrays."""
+    hits = [int(correct(p, t, tol).sum()) for p, t in zip(preds, truths, strict=True)]
+    frames = [int(np.asarray(t).size) for t in truths]
+    return np.array(hits, dtype=np.float64), np.array(frames, dtype=np.float64)
 
 
 def precision_interval(preds: Sequence[np.ndarray], truths: Sequence[np.ndarray],
@@ -36,9 +43,7 @@ def precision_interval(preds: Sequence[np.ndarray], truths: Sequence[np.ndarray]
     of one drive are not independent); ``None`` for fewer than two drives."""
     if len(truths) < 2:
         return None
-    hits = np.array([int(correct(p, t, tol).sum()) for p, t in zip(preds, truths, strict=True)],
-                    dtype=np.float64)  # fmt: skip
-    frames = np.array([int(np.asarray(t).size) for t in truths], dtype=np.float64)
+    hits, frames = _per_drive(preds, truths, tol)
     pick = np.random.default_rng(seed).integers(0, len(truths), size=(resamples, len(truths)))
     with np.errstate(invalid="ignore", divide="ignore"):
         boot = hits[pick].sum(axis=1) / frames[pick].sum(axis=1)
