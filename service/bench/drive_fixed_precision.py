@@ -18,7 +18,14 @@ bench's ``seed``, the routes and drives of :mod:`service.bench.drive_scaling`):
   validation precision);
 - drive precision: the share of query frames of drives from an **unknown start**
   (:class:`~service.encoding.tracking.DriveTracker`, fresh) whose estimate lies within ±5
-  frames of the truth.
+  frames of the truth; with ``odometry_noise``, drives carry SIMULATED odometry at that noise
+  (:func:`~service.bench.drive_scaling.drive_odometry`).
+
+Beside each answer stands what **any** map needs for the same drives
+(:func:`information_bound_bytes`, Fano's inequality on places that look independent of one
+another): the share of a drive's frames a filter can place within ±5 is bounded by how many
+bits of the map the places seen so far can draw on, so a fixed precision at a fixed drive
+length asks for bytes that grow as fast as ``N·log N``, whatever the code.
 
 The minimal code bytes are then fitted as ``c·N^a`` (``code_bytes_fit``), together with the test
 precision at each; a length whose validation search does not reach ``P`` even at ``f = 1``
@@ -37,12 +44,17 @@ from typing import Any
 
 import numpy as np
 
-from service.bench.drive_scaling import SIZES, _drive_rows, _fit_power
+from service.bench.drive_scaling import (
+    SIZES,
+    _drive_rows,
+    _fit_power,
+    drive_odometry,
+    filter_config,
+)
 from service.encoding.drive_scoring import drive_scorer
 from service.encoding.factory import ModelParams, build_model
 from service.encoding.presets import preset as preset_of
 from service.encoding.residue import residue_periods
-from service.encoding.sequence import SequenceConfig
 from service.encoding.synthetic import SYNTHETIC_LABEL, route_queries, write_route
 from service.encoding.tracking import DriveTracker
 
@@ -63,6 +75,42 @@ class FixedPrecisionOptions:
     emission_scales: tuple[float, ...] = (0.1,)
     start_fraction: float | None = None  # the first length's guess (default: the preset's Στ/N)
     overrides: dict[str, Any] = field(default_factory=dict)  # other fields of the code family
+    odometry_noise: float | None = None  # SIMULATED odometry's level (None: drives without)
+    max_speed: float = 2.0  # the drives' fastest speed, reference frames per query frame
+
+
+def information_bound_bytes(n_frames: int, drive_length: int, precision: float,
+                            radius: int = 5, max_speed: float = 2.0) -> float:  # fmt: skip
+    """The fewest bytes with which any map and filter can place ``precision`` of the frames of
+    drives of ``drive_length`` frames, from a uniformly unknown start, within ±``radius``, if the
+    route's places look independent of one another (``inf``: no map can).
+
+    After ``t`` frames the drive has seen at most ``w = max_speed·t + 1`` places; the map's
+    ``S`` bits hold, averaged over starts, at most ``S·w/N`` bits about those (disjoint windows of
+    independent places share the ``S`` bits), and the views do not depend on the start by
+    themselves. Fano's inequality (list decoding into windows of ``2·radius + 1`` frames) then
+    bounds the estimate at frame ``t`` to be right with probability at most
+    ``min(1, (S·w/N + 1) / log2(N / (2·radius + 1)))``; the bound is the smallest ``S`` whose mean
+    of that over the drive's frames reaches ``precision``. Odometry changes nothing here: it says
+    how far the vehicle moved, not where it is."""
+    cells = math.log2(n_frames / (2 * radius + 1))
+    if cells <= 1:
+        return 0.0
+    seen = max_speed * np.arange(1, drive_length + 1) + 1.0
+
+    def reach(bits: float) -> float:
+        return float(np.mean(np.minimum(1.0, (bits * seen / n_frames + 1.0) / cells)))
+
+    if reach(0.0) >= precision:
+        return 0.0
+    hi = n_frames * cells  # every frame right from the first
+    if reach(hi) < precision:
+        return math.inf
+    lo = 0.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if reach(mid) >= precision else (mid, hi)
+    return hi / 8
 
 
 def grid_fraction(j: int) -> float:
@@ -82,14 +130,16 @@ def drive_precision(
     drive's share; drives and query noise drawn from ``seed``."""
     n = ref.shape[0]
     scorer = drive_scorer(model)
-    config = SequenceConfig(emission_scale=scale)
+    config = filter_config(opts.odometry_noise, emission_scale=scale)
     rng = np.random.default_rng([seed, n])
     per_drive = []
     for d in range(opts.drives):
         rows = _drive_rows(n, opts.drive_length, rng)
         Q = route_queries(ref, rows, opts.query_noise, seed=seed * 1000 + d)
+        odo = drive_odometry(rows, opts.odometry_noise, [seed, n, d])
         tracker = DriveTracker(scorer, config)
-        est = np.array([tracker.update(p).index for p in scorer.prepare_many(Q)])
+        est = np.array([tracker.update(p, u).index
+                        for p, u in zip(scorer.prepare_many(Q), odo, strict=True)])
         per_drive.append(float(np.mean(np.abs(est - rows) <= 5)))
     return float(np.mean(per_drive)), per_drive
 
@@ -177,7 +227,9 @@ def measure_size(n: int, opts: FixedPrecisionOptions, start: int, workdir: Path,
     del val
     (workdir / f"val-{n}.npy").unlink(missing_ok=True)
     chosen = found["chosen"]
-    out: dict[str, Any] = {"n_frames": n, "validation": found, "reached": chosen["index"] is not None}
+    bound = information_bound_bytes(n, opts.drive_length, opts.target, max_speed=opts.max_speed)
+    out: dict[str, Any] = {"n_frames": n, "validation": found,
+                           "reached": chosen["index"] is not None, "bound_bytes": bound}  # fmt: skip
     if chosen["index"] is None:
         return out
     ref = write_route(workdir / f"test-{n}.npy", n, opts.n_features, seed=opts.seed)
@@ -217,7 +269,7 @@ def run_fixed_precision(opts: FixedPrecisionOptions, workdir: Path | None = None
         "mode": "fixed-precision",
         "options": opts.__dict__ | {"sizes": list(opts.sizes),
                                     "emission_scales": list(opts.emission_scales)},
-        "filter": SequenceConfig().model_dump(),
+        "filter": filter_config(opts.odometry_noise).model_dump(),
         "sizes": results,
     }  # fmt: skip
     reached = [r for r in results if r["reached"]]
@@ -226,4 +278,7 @@ def run_fixed_precision(opts: FixedPrecisionOptions, workdir: Path | None = None
                                            [r["code_bytes"] for r in reached])  # fmt: skip
         out["map_bytes_fit"] = _fit_power([r["n_frames"] for r in reached],
                                           [r["map_bytes"] for r in reached])  # fmt: skip
+    if len(results) >= 2 and all(0 < r["bound_bytes"] < math.inf for r in results):
+        out["bound_bytes_fit"] = _fit_power([r["n_frames"] for r in results],
+                                            [r["bound_bytes"] for r in results])  # fmt: skip
     return out

@@ -11,8 +11,10 @@ frames' precision, and the per-frame cost of each filter (CPU time per update; t
 over frames it spent in windows mode; and on drives started at their known first place,
 :meth:`~service.encoding.tracking.DriveTracker.start_at`, so that the tracker's cost is
 measured on every length even where the evidence does not concentrate the belief), and fits
-``bytes ≈ c·N^a`` over the lengths. CPU times are measured with one BLAS thread, as the server
-runs.
+``bytes ≈ c·N^a`` over the lengths. With ``odometry_noise`` every drive frame also carries
+SIMULATED odometry (the true displacement with that noise,
+:func:`~service.bench.drive_protocols.noisy_odometry`), and the filter is told that noise. CPU
+times are measured with one BLAS thread, as the server runs.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.drive_bench import stated
+from service.bench.drive_protocols import noisy_odometry
 from service.encoding.drive_scoring import drive_scorer
 from service.encoding.factory import ModelParams, build_model
 from service.encoding.sequence import SequenceConfig, SequenceFilter
@@ -46,6 +50,7 @@ class ScalingOptions:
     whole_frames: int = 30  # frames timed through the whole-route filter (O(S·N) each)
     preset: str = "drive"
     seed: int = 0
+    odometry_noise: float | None = None  # SIMULATED odometry's level (None: drives without)
 
 
 def speed_profile(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -59,6 +64,22 @@ def _drive_rows(n_frames: int, length: int, rng: np.random.Generator) -> np.ndar
     span = float(speed.sum()) + 2
     start = rng.uniform(0, max(1.0, n_frames - span))
     return np.minimum(np.rint(start + np.cumsum(speed) - speed[0]).astype(np.int64), n_frames - 1)
+
+
+def drive_odometry(rows: np.ndarray, level: float | None, seed: list[int]) -> list[float | None]:
+    """Each frame's SIMULATED odometry (:func:`~service.bench.drive_protocols.noisy_odometry`
+    of the true displacement at ``level``), or ``None`` per frame for drives without."""
+    if level is None:
+        return [None] * int(rows.size)
+    motion = np.diff(rows, prepend=rows[:1]).astype(np.float64)
+    return [float(u) for u in noisy_odometry(motion, level, seed)]
+
+
+def filter_config(level: float | None, **fields: Any) -> SequenceConfig:
+    """The filter's defaults (with ``fields``), stating the odometry noise ``level`` when the
+    drives have odometry."""
+    config = SequenceConfig.parse(**fields) if fields else SequenceConfig()
+    return config if level is None else stated(config, level)
 
 
 def _fit_power(x: list[float], y: list[float]) -> dict[str, float]:
@@ -77,7 +98,7 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
     fp = model.footprint().to_dict()
     code_bytes = int(fp["components"]["encoders"]["actual_bytes"])
     scorer = drive_scorer(model)
-    config = SequenceConfig()
+    config = filter_config(opts.odometry_noise)
     rng = np.random.default_rng([opts.seed, n])
     hits, singles, track_us, frames_windowed, frames_total = [], [], [], 0, 0
     cold_us, cold_whole = [], []
@@ -86,12 +107,13 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
         Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + d)
         preps = scorer.prepare_many(Q)
         singles.append(np.abs(model.localize(Q).index - rows) <= 5)
+        odo = drive_odometry(rows, opts.odometry_noise, [opts.seed, n, d])
         tracker = DriveTracker(scorer, config)
         est = np.empty(rows.size, dtype=np.int64)
         for t, prep in enumerate(preps):
             windowed = tracker.mode == "windows"
             c0 = time.process_time_ns()
-            est[t] = tracker.update(prep).index
+            est[t] = tracker.update(prep, odo[t]).index
             dt = time.process_time_ns() - c0
             cold_us.append(dt / 1e3)
             cold_whole.append(not windowed or tracker.mode == "whole")
@@ -106,12 +128,13 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
     for d in range(max(1, opts.drives // 2)):
         rows = _drive_rows(n, opts.drive_length, rng)
         Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 500 + d)
+        odo = drive_odometry(rows, opts.odometry_noise, [opts.seed, n, 500 + d])
         tracker = DriveTracker(scorer, config)
         tracker.start_at(int(rows[0]))
         for t, prep in enumerate(scorer.prepare_many(Q)):
             windowed = tracker.mode == "windows"
             c0 = time.process_time_ns()
-            index = tracker.update(prep).index
+            index = tracker.update(prep, odo[t]).index
             dt_us = (time.process_time_ns() - c0) / 1e3
             seeded_all_us.append(dt_us)
             seeded_whole.append(not windowed or tracker.mode == "whole")
@@ -122,11 +145,12 @@ def measure_size(n: int, opts: ScalingOptions, workdir: Path) -> dict[str, Any]:
     rows = _drive_rows(n, opts.whole_frames, rng)
     Q = route_queries(ref, rows, opts.query_noise, seed=opts.seed * 1000 + 999)
     preps = scorer.prepare_many(Q)
+    odo = drive_odometry(rows, opts.odometry_noise, [opts.seed, n, 999])
     whole = SequenceFilter(n, config)
     whole_us = []
-    for prep in preps:
+    for prep, u in zip(preps, odo, strict=True):
         c0 = time.process_time_ns()
-        whole.update(scorer.full(prep))
+        whole.update(scorer.full(prep), u)
         whole_us.append((time.process_time_ns() - c0) / 1e3)
     return {
         "n_frames": n,
@@ -170,7 +194,7 @@ def run_drive_scaling(opts: ScalingOptions, workdir: Path | None = None) -> dict
     out: dict[str, Any] = {
         "data": SYNTHETIC_LABEL,
         "options": opts.__dict__ | {"sizes": list(opts.sizes)},
-        "filter": SequenceConfig().model_dump(),
+        "filter": filter_config(opts.odometry_noise).model_dump(),
         "blas_threads": BLAS_THREADS,
         "sizes": results,
     }

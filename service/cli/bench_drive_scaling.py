@@ -47,21 +47,25 @@ def _fixed(opts: FixedPrecisionOptions, work_dir: Path | None, out: Path) -> Non
     table = Table(title=f"{opts.preset} preset on {result['data']}: smallest code reaching "
                   f"{100 * opts.target:.0f} % within ±5 (chosen on validation seed "
                   f"{opts.validation_seed}, measured on test seed {opts.seed})")  # fmt: skip
-    for col in ("N", "Στ/N", "periods", "emission scale", "code B", "validation", "test drive ±5"):
+    for col in ("N", "Στ/N", "periods", "emission scale", "code B", "any map needs, B",
+                "validation", "test drive ±5"):  # fmt: skip
         table.add_column(col, justify="right")
     for r in result["sizes"]:
         chosen = r["validation"]["chosen"]
+        bound = f"{r['bound_bytes']:,.0f}"
         if not r["reached"]:
-            table.add_row(f"{r['n_frames']:,}", "not reached", "", "", "",
+            table.add_row(f"{r['n_frames']:,}", "not reached", "", "", "", bound,
                           f"{100 * chosen['precision']:.1f} %", "")  # fmt: skip
             continue
         table.add_row(f"{r['n_frames']:,}", f"{r['fraction']:.4f}", "+".join(map(str, r["periods"])),
-                      f"{r['emission_scale']:g}", f"{r['code_bytes']:,}",
+                      f"{r['emission_scale']:g}", f"{r['code_bytes']:,}", bound,
                       f"{100 * chosen['precision']:.1f} %", f"{100 * r['test_precision']:.1f} %")  # fmt: skip
     console.print(table)
-    if "code_bytes_fit" in result:
-        fit = result["code_bytes_fit"]
-        console.print(f"minimal code bytes: {fit['prefactor']:.3g}·N^{fit['exponent']:.3f}")
+    for key, what in (("code_bytes_fit", "minimal code bytes"),
+                      ("bound_bytes_fit", "bytes any map needs (independent places)")):  # fmt: skip
+        if key in result:
+            fit = result[key]
+            console.print(f"{what}: {fit['prefactor']:.3g}·N^{fit['exponent']:.3f}")
     out.write_text(json.dumps(result, indent=2))
     console.print(f"wrote {out}")
 
@@ -89,6 +93,10 @@ def bench_drive_scaling(
     start_fraction: Annotated[float | None, typer.Option(
         help="--fixed-precision: the first length's guess of Στ/N (the search's cost, not its "
         "answer; default: the preset's own code)", min=1e-6, max=1.0)] = None,
+    odometry_noise: Annotated[float | None, typer.Option(
+        help="drives carry SIMULATED odometry: the true displacement with this noise (a "
+        "fraction of it, and in frames), stated to the filter; default: no odometry",
+        min=0.0, max=10.0)] = None,
 ) -> None:
     """Bytes (fitted as c·N^a), drive precision and per-frame filter cost (windowed tracker
     beside the whole-route filter) of a preset on SYNTHETIC routes of each length; with
@@ -103,12 +111,13 @@ def bench_drive_scaling(
                                       drives, drive_length, preset, seed=0,
                                       validation_seed=validation_seed,
                                       emission_scales=_scales(emission_scales),
-                                      start_fraction=start_fraction)  # fmt: skip
+                                      start_fraction=start_fraction,
+                                      odometry_noise=odometry_noise)  # fmt: skip
         _fixed(fixed, work_dir, out)
         return
 
     opts = ScalingOptions(_sizes(sizes), n_features, query_noise, drives, drive_length,
-                          preset=preset)  # fmt: skip
+                          preset=preset, odometry_noise=odometry_noise)  # fmt: skip
     result = run_drive_scaling(opts, work_dir)
     table = Table(title=f"{preset} preset on {result['data']}")
     for col in ("N", "code B", "map B", "fit s", "drive ±5", "single ±5", "tracking µs/frame",

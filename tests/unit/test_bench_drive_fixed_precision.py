@@ -4,6 +4,7 @@ reaches a drive precision, and the mode end to end on small SYNTHETIC routes."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from service.bench.drive_fixed_precision import Evaluate, grid_fraction, grid_index, search
+from service.bench.drive_fixed_precision import (
+    Evaluate,
+    grid_fraction,
+    grid_index,
+    information_bound_bytes,
+    search,
+)
+from service.bench.drive_scaling import _fit_power
 from service.cli import app
 
 
@@ -75,6 +83,34 @@ def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
                    and t["emission_scale"] == r["emission_scale"]]
         assert all(t["precision"] < 0.9 for t in smaller)
     assert "exponent" in data["code_bytes_fit"] and "minimal code bytes" in result.output
+    assert all(0 < r["bound_bytes"] < r["code_bytes"] for r in data["sizes"])
+    assert data["bound_bytes_fit"]["exponent"] > 1.0 and "any map needs" in result.output
     bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
                                    "--emission-scales", "0.1,-1"])  # fmt: skip
     assert bad.exit_code == 2
+
+
+def test_the_information_bound_of_one_frame_is_fanos() -> None:
+    # one frame that sees one place: right with probability (S/N + 1)/log2(N/11) at most
+    n, p = 11 * 2**10, 0.6
+    bound = information_bound_bytes(n, 1, p, max_speed=0.0)
+    assert abs(8 * bound - n * (p * 10 - 1)) < 1e-6 * n
+
+
+@settings(max_examples=100, deadline=None)
+@given(n=st.integers(1_000, 10**7), length=st.integers(1, 2_000), p=st.floats(0.2, 0.999))
+def test_the_information_bound_is_the_least_map_that_reaches_the_precision(
+    n: int, length: int, p: float
+) -> None:
+    bound = information_bound_bytes(n, length, p)
+    assert 0 <= bound < math.inf
+    # more frames per drive never need more bytes, a longer route or a higher share never fewer
+    assert information_bound_bytes(n, 2 * length, p) <= bound + 1e-6
+    assert information_bound_bytes(2 * n, length, p) >= bound - 1e-6
+    assert information_bound_bytes(n, length, min(1.0, p + 0.001)) >= bound - 1e-6
+
+
+def test_the_information_bound_grows_faster_than_the_route_at_a_fixed_drive() -> None:
+    sizes = [10_000, 100_000, 1_000_000]
+    fit = _fit_power(sizes, [information_bound_bytes(n, 300, 0.95) for n in sizes])
+    assert fit["exponent"] > 1.0  # N·log N: no code keeps a < 1 at a fixed drive length

@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
-from service.bench.drive_scaling import _drive_rows, _fit_power, speed_profile
+from service.bench.drive_scaling import (
+    _drive_rows,
+    _fit_power,
+    drive_odometry,
+    filter_config,
+    speed_profile,
+)
 from service.cli import app
 
 
@@ -39,4 +45,27 @@ def test_the_bench_writes_its_figures(tmp_path: Path) -> None:
     assert 0.3 < data["code_bytes_fit"]["exponent"] < 0.7  # Στ ∝ √N
     assert "code bytes fit" in result.output
     bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--sizes", "10,x"])
+    assert bad.exit_code == 2
+
+
+def test_drive_odometry_is_the_true_displacement_at_zero_noise() -> None:
+    rows = np.array([4, 5, 7, 7, 10])
+    assert drive_odometry(rows, None, [0]) == [None] * 5
+    assert drive_odometry(rows, 0.0, [0]) == [0.0, 1.0, 2.0, 0.0, 3.0]
+    noisy = drive_odometry(rows, 0.1, [0])
+    assert noisy != drive_odometry(rows, 0.0, [0]) and noisy == drive_odometry(rows, 0.1, [0])
+    assert filter_config(0.2).odometry_noise == 0.2 and filter_config(None).odometry_noise == 0.1
+
+
+def test_drives_with_odometry_are_tracked_and_say_so(tmp_path: Path) -> None:
+    out = tmp_path / "scaling.json"
+    result = CliRunner().invoke(app, ["bench", "drive-scaling", "--sizes", "2000", "--drives", "1",
+                                      "--drive-length", "120", "--odometry-noise", "0.05",
+                                      "--query-noise", "0.2", "--work-dir", str(tmp_path),
+                                      "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert data["options"]["odometry_noise"] == 0.05 and data["filter"]["odometry_noise"] == 0.05
+    assert data["sizes"][0]["seeded_drive_precision"] > 0.9
+    bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--odometry-noise", "-1"])
     assert bad.exit_code == 2
