@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.drive_protocols import MAX_SPEED
 from service.bench.drive_scaling import (
     SIZES,
     _drive_rows,
@@ -76,11 +77,10 @@ class FixedPrecisionOptions:
     start_fraction: float | None = None  # the first length's guess (default: the preset's Στ/N)
     overrides: dict[str, Any] = field(default_factory=dict)  # other fields of the code family
     odometry_noise: float | None = None  # SIMULATED odometry's level (None: drives without)
-    max_speed: float = 2.0  # the drives' fastest speed, reference frames per query frame
 
 
 def information_bound_bytes(n_frames: int, drive_length: int, precision: float,
-                            radius: int = 5, max_speed: float = 2.0) -> float:  # fmt: skip
+                            radius: int = 5, max_speed: float = MAX_SPEED) -> float:  # fmt: skip
     """The fewest bytes with which any map and filter can place ``precision`` of the frames of
     drives of ``drive_length`` frames, from a uniformly unknown start, within ±``radius``, if the
     route's places look independent of one another (``inf``: no map can).
@@ -227,7 +227,7 @@ def measure_size(n: int, opts: FixedPrecisionOptions, start: int, workdir: Path,
     del val
     (workdir / f"val-{n}.npy").unlink(missing_ok=True)
     chosen = found["chosen"]
-    bound = information_bound_bytes(n, opts.drive_length, opts.target, max_speed=opts.max_speed)
+    bound = information_bound_bytes(n, opts.drive_length, opts.target)
     out: dict[str, Any] = {"n_frames": n, "validation": found,
                            "reached": chosen["index"] is not None, "bound_bytes": bound}  # fmt: skip
     if chosen["index"] is None:

@@ -63,6 +63,12 @@ class Drive:
         return int(self.rows.shape[0])
 
 
+def true_motion(truth: np.ndarray) -> np.ndarray:
+    """Each frame's displacement since the previous one along ``truth`` (reference frames; the
+    first frame's is 0), float64."""
+    return np.diff(truth, prepend=truth[:1]).astype(np.float64)
+
+
 def make_drive(protocol: str, name: str, rows: np.ndarray, ground_truth: np.ndarray,
                event: int = -1) -> Drive:  # fmt: skip
     """A drive over query ``rows``; its truth from ``ground_truth`` (query row → reference
@@ -70,7 +76,7 @@ def make_drive(protocol: str, name: str, rows: np.ndarray, ground_truth: np.ndar
     wheels report the step before it."""
     rows = np.asarray(rows, dtype=np.int64)
     truth = np.asarray(ground_truth, dtype=np.int64)[rows]
-    motion = np.diff(truth, prepend=truth[:1]).astype(np.float64)
+    motion = true_motion(truth)
     if event > 0:
         motion[event] = motion[event - 1]
     return Drive(protocol, name, rows, truth, motion, event)

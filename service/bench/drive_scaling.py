@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from service.bench.drive_bench import stated
-from service.bench.drive_protocols import noisy_odometry
+from service.bench.drive_protocols import MAX_SPEED, MIN_SPEED, noisy_odometry, true_motion
 from service.encoding.drive_scoring import drive_scorer
 from service.encoding.factory import ModelParams, build_model
 from service.encoding.sequence import SequenceConfig, SequenceFilter
@@ -54,9 +54,11 @@ class ScalingOptions:
 
 
 def speed_profile(n: int, rng: np.random.Generator) -> np.ndarray:
-    """A smoothly varying speed in [0.5, 2] reference frames per query frame."""
+    """A smoothly varying speed in [MIN_SPEED, MAX_SPEED] = [0.5, 2] reference frames per query
+    frame."""
     phase, period = rng.uniform(0, 2 * np.pi), rng.uniform(40, 160)
-    return 1.25 + 0.75 * np.sin(phase + 2 * np.pi * np.arange(n) / period)
+    mid, half = 0.5 * (MIN_SPEED + MAX_SPEED), 0.5 * (MAX_SPEED - MIN_SPEED)
+    return mid + half * np.sin(phase + 2 * np.pi * np.arange(n) / period)
 
 
 def _drive_rows(n_frames: int, length: int, rng: np.random.Generator) -> np.ndarray:
@@ -71,14 +73,13 @@ def drive_odometry(rows: np.ndarray, level: float | None, seed: list[int]) -> li
     of the true displacement at ``level``), or ``None`` per frame for drives without."""
     if level is None:
         return [None] * int(rows.size)
-    motion = np.diff(rows, prepend=rows[:1]).astype(np.float64)
-    return [float(u) for u in noisy_odometry(motion, level, seed)]
+    return [float(u) for u in noisy_odometry(true_motion(rows), level, seed)]
 
 
 def filter_config(level: float | None, **fields: Any) -> SequenceConfig:
     """The filter's defaults (with ``fields``), stating the odometry noise ``level`` when the
     drives have odometry."""
-    config = SequenceConfig.parse(**fields) if fields else SequenceConfig()
+    config = SequenceConfig.parse(**fields)
     return config if level is None else stated(config, level)
 
 
