@@ -77,6 +77,28 @@ class FixedPrecisionOptions:
     start_fraction: float | None = None  # the first length's guess (default: the preset's Στ/N)
     overrides: dict[str, Any] = field(default_factory=dict)  # other fields of the code family
     odometry_noise: float | None = None  # SIMULATED odometry's level (None: drives without)
+    drive_share: float | None = None  # drives of this share of each route (None: drive_length)
+
+
+def drive_length_at(n_frames: int, opts: FixedPrecisionOptions) -> int:
+    """Query frames per drive on a route of ``n_frames``: ``drive_share·N`` when the drives
+    grow with the route, else the fixed ``drive_length``."""
+    if opts.drive_share is None:
+        return opts.drive_length
+    return max(20, round(opts.drive_share * n_frames))
+
+
+def floor_index(n_frames: int, opts: FixedPrecisionOptions) -> int:
+    """The first grid point whose code is the family's last one at ``n_frames``: the periods
+    :func:`~service.encoding.residue.residue_periods` falls back to when ``Στ`` is too small for
+    any other (grown until their least common multiple covers the route, ``Στ ≈ k·N^(1/k)``).
+    Every grid point past it fits that same code, so the search stops there."""
+    k = int(opts.overrides.get("n_patterns", preset_of(opts.preset).n_patterns))
+    last = residue_periods(n_frames, k, ratio=1e-12)
+    j = max(0, math.ceil(-2 * math.log2(sum(last) / n_frames)))
+    while residue_periods(n_frames, k, grid_fraction(j)) != last:
+        j += 1  # a code smaller than the fallback may still exist just below it
+    return j
 
 
 def information_bound_bytes(n_frames: int, drive_length: int, precision: float,
@@ -96,7 +118,7 @@ def information_bound_bytes(n_frames: int, drive_length: int, precision: float,
     cells = math.log2(n_frames / (2 * radius + 1))
     if cells <= 1:
         return 0.0
-    seen = max_speed * np.arange(1, drive_length + 1) + 1.0
+    seen = np.minimum(max_speed * np.arange(1, drive_length + 1) + 1.0, n_frames)
 
     def reach(bits: float) -> float:
         return float(np.mean(np.minimum(1.0, (bits * seen / n_frames + 1.0) / cells)))
@@ -134,7 +156,7 @@ def drive_precision(
     rng = np.random.default_rng([seed, n])
     per_drive = []
     for d in range(opts.drives):
-        rows = _drive_rows(n, opts.drive_length, rng)
+        rows = _drive_rows(n, drive_length_at(n, opts), rng)
         Q = route_queries(ref, rows, opts.query_noise, seed=seed * 1000 + d)
         odo = drive_odometry(rows, opts.odometry_noise, [seed, n, d])
         tracker = DriveTracker(scorer, config)
@@ -147,12 +169,15 @@ def drive_precision(
 Evaluate = Callable[[int, float], dict[str, Any]]
 
 
-def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, ...]
-           ) -> dict[str, Any]:  # fmt: skip
+def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, ...],
+           smallest: int | None = None) -> dict[str, Any]:  # fmt: skip
     """The smallest grid code reaching ``target`` per emission scale (see the module doc);
     ``evaluate(j, scale)`` measures grid point ``j`` on validation and returns a record with
-    ``precision``. Returns the best scale's answer (``index`` ``None``: not reached at
-    ``f = 1``) and every record measured."""
+    ``precision``; ``smallest`` is the last grid point with a code of its own
+    (:func:`floor_index`): an answer there is bounded by the code family, not by a failure.
+    Returns the best scale's answer (``index`` ``None``: not reached at ``f = 1``) and every
+    record measured."""
+    last = MAX_STEPS * 1000 if smallest is None else smallest
     trials: list[dict[str, Any]] = []
     answers = []
     for scale in scales:
@@ -165,10 +190,10 @@ def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, .
                 seen[j] = float(rec["precision"])
             return seen[j] >= target
 
-        j = max(0, start)
+        j = min(max(0, start), last)
         for _ in range(MAX_STEPS):
             if at(j):
-                if j + 1 in seen and not at(j + 1):
+                if j == last or (j + 1 in seen and not at(j + 1)):
                     break
                 j += 1  # passes: try one step smaller
             else:
@@ -179,8 +204,10 @@ def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, .
         best = max(passing) if passing else None
         # the answer is bounded when the next smaller code was measured and failed
         below = 0 if best is None else best + 1
-        bounded = below in seen and seen[below] < target
+        floor = best is not None and best == last
+        bounded = floor or (below in seen and seen[below] < target)
         answers.append({"emission_scale": scale, "index": best, "bounded": bounded,
+                        "family_floor": floor,
                         "precision": seen[best] if best is not None else max(seen.values())})  # fmt: skip
     found = [a for a in answers if a["index"] is not None]
     if found:
@@ -222,20 +249,22 @@ def measure_size(n: int, opts: FixedPrecisionOptions, start: int, workdir: Path,
             f"{rec['code_bytes']:,} B), emission scale {scale:g}: {100 * prec:.1f} %")
         return rec
 
-    found = search(evaluate, start, opts.target, opts.emission_scales)
+    found = search(evaluate, start, opts.target, opts.emission_scales, floor_index(n, opts))
     models.clear()
     del val
     (workdir / f"val-{n}.npy").unlink(missing_ok=True)
     chosen = found["chosen"]
-    bound = information_bound_bytes(n, opts.drive_length, opts.target)
-    out: dict[str, Any] = {"n_frames": n, "validation": found,
+    length = drive_length_at(n, opts)
+    bound = information_bound_bytes(n, length, opts.target)
+    out: dict[str, Any] = {"n_frames": n, "drive_length": length, "validation": found,
                            "reached": chosen["index"] is not None, "bound_bytes": bound}  # fmt: skip
     if chosen["index"] is None:
         return out
     ref = write_route(workdir / f"test-{n}.npy", n, opts.n_features, seed=opts.seed)
     model, fit_s = _fit(ref, opts, grid_fraction(chosen["index"]))
     prec, per = drive_precision(ref, model, opts, opts.seed, chosen["emission_scale"])
-    out |= {"fraction": grid_fraction(chosen["index"]), "index": chosen["index"],
+    out |= {"fraction": sum(model.periods_) / n, "grid_fraction": grid_fraction(chosen["index"]),
+            "index": chosen["index"], "family_floor": chosen["family_floor"],
             "emission_scale": chosen["emission_scale"],
             "periods": [int(p) for p in model.periods_], "code_bytes": _code_bytes(model),
             "map_bytes": int(model.footprint().to_dict()["actual_bytes"]),

@@ -47,17 +47,18 @@ def _fixed(opts: FixedPrecisionOptions, work_dir: Path | None, out: Path) -> Non
     table = Table(title=f"{opts.preset} preset on {result['data']}: smallest code reaching "
                   f"{100 * opts.target:.0f} % within ±5 (chosen on validation seed "
                   f"{opts.validation_seed}, measured on test seed {opts.seed})")  # fmt: skip
-    for col in ("N", "Στ/N", "periods", "emission scale", "code B", "any map needs, B",
+    for col in ("N", "drive frames", "Στ/N", "periods", "emission scale", "code B", "any map needs, B",
                 "validation", "test drive ±5"):  # fmt: skip
         table.add_column(col, justify="right")
     for r in result["sizes"]:
         chosen = r["validation"]["chosen"]
         bound = f"{r['bound_bytes']:,.0f}"
         if not r["reached"]:
-            table.add_row(f"{r['n_frames']:,}", "not reached", "", "", "", bound,
+            table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", "not reached", "", "", "", bound,
                           f"{100 * chosen['precision']:.1f} %", "")  # fmt: skip
             continue
-        table.add_row(f"{r['n_frames']:,}", f"{r['fraction']:.4f}", "+".join(map(str, r["periods"])),
+        fraction = f"{r['fraction']:.4f}" + (" (floor)" if r["family_floor"] else "")
+        table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", fraction, "+".join(map(str, r["periods"])),
                       f"{r['emission_scale']:g}", f"{r['code_bytes']:,}", bound,
                       f"{100 * chosen['precision']:.1f} %", f"{100 * r['test_precision']:.1f} %")  # fmt: skip
     console.print(table)
@@ -97,6 +98,10 @@ def bench_drive_scaling(
         help="drives carry SIMULATED odometry: the true displacement with this noise (a "
         "fraction of it, and in frames), stated to the filter; default: no odometry",
         min=0.0, max=10.0)] = None,
+    drive_share: Annotated[float | None, typer.Option(
+        help="--fixed-precision: drives of this share of each route instead of --drive-length "
+        "frames (drives that grow with the route; at most 0.75, so that a drive's span at "
+        "up to 2 frames per frame fits the route)", min=0.001, max=0.75)] = None,
 ) -> None:
     """Bytes (fitted as c·N^a), drive precision and per-frame filter cost (windowed tracker
     beside the whole-route filter) of a preset on SYNTHETIC routes of each length; with
@@ -112,7 +117,8 @@ def bench_drive_scaling(
                                       validation_seed=validation_seed,
                                       emission_scales=_scales(emission_scales),
                                       start_fraction=start_fraction,
-                                      odometry_noise=odometry_noise)  # fmt: skip
+                                      odometry_noise=odometry_noise,
+                                      drive_share=drive_share)  # fmt: skip
         _fixed(fixed, work_dir, out)
         return
 

@@ -14,6 +14,9 @@ from typer.testing import CliRunner
 
 from service.bench.drive_fixed_precision import (
     Evaluate,
+    FixedPrecisionOptions,
+    drive_length_at,
+    floor_index,
     grid_fraction,
     grid_index,
     information_bound_bytes,
@@ -21,6 +24,7 @@ from service.bench.drive_fixed_precision import (
 )
 from service.bench.drive_scaling import _fit_power
 from service.cli import app
+from service.encoding.residue import residue_periods
 
 
 def _threshold(last: int, calls: list[tuple[int, float]],
@@ -45,6 +49,28 @@ def test_the_search_finds_the_smallest_passing_code_from_any_start(last: int, st
     assert chosen["bounded"]  # the next smaller code (or f = 1 when none passes) was measured
     assert len(calls) == len(set(calls)) <= abs(start - last) + 2  # each point measured once
     assert len(out["trials"]) == len(calls)
+
+
+@settings(max_examples=100, deadline=None)
+@given(smallest=st.integers(0, 9), start=st.integers(0, 12))
+def test_the_search_stops_at_the_code_familys_smallest_code(smallest: int, start: int) -> None:
+    calls: list[tuple[int, float]] = []
+    out = search(_threshold(30, calls), start, 0.95, (0.1,), smallest=smallest)
+    chosen = out["chosen"]
+    assert chosen["index"] == smallest and chosen["family_floor"] and chosen["bounded"]
+    assert max(j for j, _ in calls) == smallest  # never past the floor
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(1_000, 2_000_000), k=st.integers(2, 3))
+def test_the_floor_index_is_the_first_grid_point_at_the_familys_last_code(n: int, k: int) -> None:
+    opts = FixedPrecisionOptions(overrides={"n_patterns": k})
+    j = floor_index(n, opts)
+    last = residue_periods(n, k, ratio=1e-12)
+    assert all(residue_periods(n, k, grid_fraction(i)) == last for i in (j, j + 1, j + 4))
+    assert j == 0 or residue_periods(n, k, grid_fraction(j - 1)) != last
+    if k == 2:  # the drive preset's family: its last code is its smallest
+        assert math.prod(last) >= n and sum(last) <= 2 * math.isqrt(n) + 4
 
 
 def test_the_scale_with_the_smallest_code_is_kept() -> None:
@@ -90,6 +116,33 @@ def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
     assert bad.exit_code == 2
 
 
+def test_drives_may_grow_with_the_route(tmp_path: Path) -> None:
+    out = tmp_path / "share.json"
+    result = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
+                                      "--sizes", "2000,4000", "--drives", "1",
+                                      "--drive-share", "0.05", "--query-noise", "0.2",
+                                      "--work-dir", str(tmp_path), "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert [r["drive_length"] for r in data["sizes"]] == [100, 200]
+    for r in data["sizes"]:
+        assert r["reached"] and r["test_precision"] >= 0.5
+        assert r["bound_bytes"] == information_bound_bytes(r["n_frames"], r["drive_length"], 0.9)
+        trials = r["validation"]["trials"]
+        assert max(t["index"] for t in trials) <= floor_index(r["n_frames"],
+                                                                FixedPrecisionOptions())  # fmt: skip
+    for share in ("0", "0.9"):
+        bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
+                                       "--drive-share", share])  # fmt: skip
+        assert bad.exit_code == 2
+
+
+def test_a_drive_share_sets_each_routes_drive_length() -> None:
+    opts = FixedPrecisionOptions(drive_share=0.1)
+    assert [drive_length_at(n, opts) for n in (1_000, 10_000)] == [100, 1_000]
+    assert drive_length_at(10_000, FixedPrecisionOptions(drive_length=300)) == 300
+
+
 def test_the_information_bound_of_one_frame_is_fanos() -> None:
     # one frame that sees one place: right with probability (S/N + 1)/log2(N/11) at most
     n, p = 11 * 2**10, 0.6
@@ -114,3 +167,10 @@ def test_the_information_bound_grows_faster_than_the_route_at_a_fixed_drive() ->
     sizes = [10_000, 100_000, 1_000_000]
     fit = _fit_power(sizes, [information_bound_bytes(n, 300, 0.95) for n in sizes])
     assert fit["exponent"] > 1.0  # N·log N: no code keeps a < 1 at a fixed drive length
+
+
+def test_the_information_bound_grows_as_log_n_when_drives_grow_with_the_route() -> None:
+    sizes = [10_000, 100_000, 1_000_000]
+    bounds = [information_bound_bytes(n, n // 10, 0.95) for n in sizes]
+    fit = _fit_power(sizes, bounds)
+    assert 0 < fit["exponent"] < 0.2  # about log N: a drive sees a fixed share of the route
