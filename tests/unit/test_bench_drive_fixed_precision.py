@@ -62,8 +62,13 @@ def test_the_search_stops_at_the_code_familys_smallest_code(smallest: int, start
 
 
 @settings(max_examples=20, deadline=None)
-@given(n=st.integers(1_000, 2_000_000), k=st.integers(2, 3))
-def test_the_floor_index_is_the_first_grid_point_at_the_familys_last_code(n: int, k: int) -> None:
+@given(case=st.one_of(st.tuples(st.integers(1_000, 2_000_000), st.just(2)),
+                     # three periods of ≈ N^(1/3): scoring their aliases costs (N/τ)² each
+                     st.tuples(st.integers(1_000, 20_000), st.just(3))))
+def test_the_floor_index_is_the_first_grid_point_at_the_familys_last_code(
+    case: tuple[int, int],
+) -> None:
+    n, k = case
     opts = FixedPrecisionOptions(overrides={"n_patterns": k})
     j = floor_index(n, opts)
     last = residue_periods(n, k, ratio=1e-12)
