@@ -16,16 +16,21 @@ bench's ``seed``, the routes and drives of :mod:`service.bench.drive_scaling`):
 - with several ``emission_scales`` (the sequence filter's weight of one frame's evidence) the
   search runs for each, and the scale whose answer is smallest is kept (ties: the higher
   validation precision);
+- the search stops at the code family's last code (:func:`floor_index`: two periods of
+  ≈ √N for the ``drive`` preset), below which every grid point fits that same code;
 - drive precision: the share of query frames of drives from an **unknown start**
   (:class:`~service.encoding.tracking.DriveTracker`, fresh) whose estimate lies within ±5
-  frames of the truth; with ``odometry_noise``, drives carry SIMULATED odometry at that noise
+  frames of the truth; drives of ``drive_length`` frames, or with ``drive_share`` of that share
+  of each route (:func:`drive_length_at`: drives that grow with the route, as a fleet's that
+  covers it does); with ``odometry_noise``, drives carry SIMULATED odometry at that noise
   (:func:`~service.bench.drive_scaling.drive_odometry`).
 
 Beside each answer stands what **any** map needs for the same drives
 (:func:`information_bound_bytes`, Fano's inequality on places that look independent of one
 another): the share of a drive's frames a filter can place within ±5 is bounded by how many
 bits of the map the places seen so far can draw on, so a fixed precision at a fixed drive
-length asks for bytes that grow as fast as ``N·log N``, whatever the code.
+length asks for bytes that grow as fast as ``N·log N``, whatever the code; with drives of a
+fixed share of the route, as ``log N``.
 
 The minimal code bytes are then fitted as ``c·N^a`` (``code_bytes_fit``), together with the test
 precision at each; a length whose validation search does not reach ``P`` even at ``f = 1``
