@@ -10,7 +10,7 @@ from typing import Any
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from service.bench.drive_fixed_precision import (
     Evaluate,
@@ -91,14 +91,19 @@ def test_the_grid_steps_by_root_two() -> None:
     assert grid_index(1.0) == 0 and grid_index(0.3) == 3  # 0.3 is nearest to 2^-1.5 = 0.354
 
 
-def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
+def _fixed_precision(tmp_path: Path, *drives: str) -> tuple[Result, dict[str, Any]]:
+    """The mode at 90 % on SYNTHETIC routes of 2,000 and 4,000 frames, one drive each."""
     out = tmp_path / "fixed.json"
     result = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
-                                      "--sizes", "2000,4000", "--drives", "1",
-                                      "--drive-length", "100", "--query-noise", "0.2",
+                                      "--sizes", "2000,4000", "--drives", "1", *drives,
+                                      "--query-noise", "0.2",
                                       "--work-dir", str(tmp_path), "--out", str(out)])  # fmt: skip
     assert result.exit_code == 0, result.output
-    data = json.loads(out.read_text())
+    return result, json.loads(out.read_text())
+
+
+def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
+    result, data = _fixed_precision(tmp_path, "--drive-length", "100")
     assert data["data"].startswith("SYNTHETIC") and data["mode"] == "fixed-precision"
     assert [r["n_frames"] for r in data["sizes"]] == [2000, 4000]
     for r in data["sizes"]:
@@ -122,13 +127,7 @@ def test_the_fixed_precision_mode_writes_its_figures(tmp_path: Path) -> None:
 
 
 def test_drives_may_grow_with_the_route(tmp_path: Path) -> None:
-    out = tmp_path / "share.json"
-    result = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
-                                      "--sizes", "2000,4000", "--drives", "1",
-                                      "--drive-share", "0.05", "--query-noise", "0.2",
-                                      "--work-dir", str(tmp_path), "--out", str(out)])  # fmt: skip
-    assert result.exit_code == 0, result.output
-    data = json.loads(out.read_text())
+    _, data = _fixed_precision(tmp_path, "--drive-share", "0.05")
     assert [r["drive_length"] for r in data["sizes"]] == [100, 200]
     for r in data["sizes"]:
         assert r["reached"] and r["test_precision"] >= 0.5
