@@ -47,20 +47,21 @@ def _fixed(opts: FixedPrecisionOptions, work_dir: Path | None, out: Path) -> Non
     table = Table(title=f"{opts.preset} preset on {result['data']}: smallest code reaching "
                   f"{100 * opts.target:.0f} % within ±5 (chosen on validation seed "
                   f"{opts.validation_seed}, measured on test seed {opts.seed})")  # fmt: skip
-    for col in ("N", "drive frames", "Στ/N", "periods", "emission scale", "code B", "any map needs, B",
-                "validation", "test drive ±5"):  # fmt: skip
+    for col in ("N", "drive frames", "Στ/N", "periods", "emission scale", "code B",
+                "any map needs, B", "validation", "test drive ±5"):  # fmt: skip
         table.add_column(col, justify="right")
     for r in result["sizes"]:
         chosen = r["validation"]["chosen"]
         bound = f"{r['bound_bytes']:,.0f}"
         if not r["reached"]:
-            table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", "not reached", "", "", "", bound,
-                          f"{100 * chosen['precision']:.1f} %", "")  # fmt: skip
+            table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", "not reached", "", "",
+                          "", bound, f"{100 * chosen['precision']:.1f} %", "")  # fmt: skip
             continue
         fraction = f"{r['fraction']:.4f}" + (" (floor)" if r["family_floor"] else "")
-        table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", fraction, "+".join(map(str, r["periods"])),
-                      f"{r['emission_scale']:g}", f"{r['code_bytes']:,}", bound,
-                      f"{100 * chosen['precision']:.1f} %", f"{100 * r['test_precision']:.1f} %")  # fmt: skip
+        table.add_row(f"{r['n_frames']:,}", f"{r['drive_length']:,}", fraction,
+                      "+".join(map(str, r["periods"])), f"{r['emission_scale']:g}",
+                      f"{r['code_bytes']:,}", bound, f"{100 * chosen['precision']:.1f} %",
+                      f"{100 * r['test_precision']:.1f} %")  # fmt: skip
     console.print(table)
     for key, what in (("code_bytes_fit", "minimal code bytes"),
                       ("bound_bytes_fit", "bytes any map needs (independent places)")):  # fmt: skip

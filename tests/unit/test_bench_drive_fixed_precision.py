@@ -133,8 +133,8 @@ def test_drives_may_grow_with_the_route(tmp_path: Path) -> None:
         assert r["reached"] and r["test_precision"] >= 0.5
         assert r["bound_bytes"] == information_bound_bytes(r["n_frames"], r["drive_length"], 0.9)
         trials = r["validation"]["trials"]
-        assert max(t["index"] for t in trials) <= floor_index(r["n_frames"],
-                                                                FixedPrecisionOptions())  # fmt: skip
+        last = floor_index(r["n_frames"], FixedPrecisionOptions())
+        assert max(t["index"] for t in trials) <= last
     for share in ("0", "0.9"):
         bad = CliRunner().invoke(app, ["bench", "drive-scaling", "--fixed-precision", "0.9",
                                        "--drive-share", share])  # fmt: skip
