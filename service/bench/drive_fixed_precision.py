@@ -182,7 +182,6 @@ def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, .
     (:func:`floor_index`): an answer there is bounded by the code family, not by a failure.
     Returns the best scale's answer (``index`` ``None``: not reached at ``f = 1``) and every
     record measured."""
-    last = MAX_STEPS * 1000 if smallest is None else smallest
     trials: list[dict[str, Any]] = []
     answers = []
     for scale in scales:
@@ -195,10 +194,10 @@ def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, .
                 seen[j] = float(rec["precision"])
             return seen[j] >= target
 
-        j = min(max(0, start), last)
+        j = max(0, start) if smallest is None else min(max(0, start), smallest)
         for _ in range(MAX_STEPS):
             if at(j):
-                if j == last or (j + 1 in seen and not at(j + 1)):
+                if j == smallest or (j + 1 in seen and not at(j + 1)):
                     break
                 j += 1  # passes: try one step smaller
             else:
@@ -209,7 +208,7 @@ def search(evaluate: Evaluate, start: int, target: float, scales: tuple[float, .
         best = max(passing) if passing else None
         # the answer is bounded when the next smaller code was measured and failed
         below = 0 if best is None else best + 1
-        floor = best is not None and best == last
+        floor = best is not None and best == smallest
         bounded = floor or (below in seen and seen[below] < target)
         answers.append({"emission_scale": scale, "index": best, "bounded": bounded,
                         "family_floor": floor,
