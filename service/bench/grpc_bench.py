@@ -33,6 +33,7 @@ from rich.table import Table
 
 from service.api.process import ServerProcess, free_port
 from service.bench.batching_grid import best_wait, measure_wait_grid
+from service.bench.fleet_bound import compute_per_frame
 from service.bench.grpc_floor import FloorServer, fleet_efficiency
 from service.bench.grpc_load import (
     merge_rounds,
@@ -157,6 +158,10 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
             _fit_publish(data_dir, "noisy", noisy.reference, params)
         runs, floor_run = _measure_all(data_dir, token, qry, noisy.query, period, frames, n_streams,
                                        window, rest_batch, compare, floor)  # fmt: skip
+        compute = None
+        if floor_run is not None:
+            with console.status("the fleet's adaptation and localization alone, in process…"):
+                compute = _fleet_compute(data_dir, qry, n_streams, window)
         grid = None
         if wait_grid:
             with console.status(f"micro-batch waits {wait_grid} ms…"):
@@ -181,7 +186,8 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
         "unbatched": runs[1] if compare else None,
         "batched_answers_equal_unbatched": same,
         "grpc_floor_streams": floor_run,
-        "fleet_efficiency": None if floor_run is None else fleet_efficiency(runs[0][key], floor_run),
+        "fleet_efficiency": None if floor_run is None else fleet_efficiency(runs[0][key], floor_run,
+                                                                            compute),
         "batch_wait_grid": grid,
         "batch_wait_best_ms": None if grid is None else best_wait(grid),
         "transport": "loopback, plaintext HTTP/2 (grpc.aio client) and HTTP/1.1 (httpx); "
@@ -195,6 +201,22 @@ def run_grpc_bench(n_frames: int, frames: int, n_streams: int, rest_batch: int, 
     out.write_text(json.dumps(report, indent=2))
     console.print(f"wrote {out}")
     return report
+
+
+def _fleet_compute(data_dir: Path, qry: np.ndarray, n_streams: int, window: int) -> dict[str, Any]:
+    """The streams' map, adapted (as the server's default adapts the benchmark's frames) and
+    localized in this process, with nothing else."""
+    from service.encoding.adaptation import route_statistics
+    from service.registry import Registry
+    from service.settings import Settings
+
+    registry = Registry(data_dir)
+    active = registry.active_version("bench")
+    assert active is not None
+    model = registry.load_model("bench", active.version)
+    settings = Settings()
+    adapt = settings.drive_adaptation and route_statistics(model) is not None
+    return compute_per_frame(model, qry, n_streams, window, settings.adaptation(), adapt)
 
 
 def _print(r: dict[str, Any], n_streams: int) -> None:
@@ -241,6 +263,13 @@ def _print(r: dict[str, Any], n_streams: int) -> None:
         console.print(f"[bold]fleet efficiency[/]: server CPU per frame, {n_streams} streams "
                       f"({fe['adapted_fraction']:.0%} of frames adapted), {fe['ratio']:.2f}× the "
                       f"floor's (target ≤ {fe['target_ratio']}×)")  # fmt: skip
+        if fe.get("compute"):
+            c = fe["compute"]
+            console.print(f"  its least possible on this transport: {fe['lower_bound_ratio']:.2f}× "
+                          f"(the floor's {fe['floor_server_cpu_us_per_frame']:.0f} µs + adapting "
+                          f"{c['adapt_us_per_frame']:.1f} µs + localizing "
+                          f"{c['localize_us_per_frame']:.1f} µs per frame, in process at batches "
+                          f"of {c['batch']}, nothing else)")  # fmt: skip
     if r.get("batch_wait_grid"):
         g = Table(title=f"GRIDPLACE_BATCH_MAX_WAIT_MS, {n_streams} streams (alternating rounds)")
         for col in ("wait ms", "frames/s", "p50 / p99 ms", "server CPU µs/frame", "unary p50 ms",

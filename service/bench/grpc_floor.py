@@ -66,13 +66,22 @@ class FloorServer:
 FLEET_TARGET = 1.3  # server CPU per frame, 8 adapted streams, against the floor's
 
 
-def fleet_efficiency(streams: dict[str, Any], floor: dict[str, Any]) -> dict[str, Any]:
-    """gridplace's server CPU per stream frame against the do-nothing server's, same run."""
+def fleet_efficiency(streams: dict[str, Any], floor: dict[str, Any],
+                     compute: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    """gridplace's server CPU per stream frame against the do-nothing server's, same run; with
+    ``compute`` (:func:`service.bench.fleet_bound.compute_per_frame` of the same map and
+    fleet), the least ratio any server on this transport could reach with that work."""
+    from service.bench.fleet_bound import lower_bound_ratio
+
     ours, base = streams["server_cpu_us_per_frame"], floor["server_cpu_us_per_frame"]
-    return {"server_cpu_us_per_frame": ours, "floor_server_cpu_us_per_frame": base,
-            "ratio": ours / base, "target_ratio": FLEET_TARGET,
-            "adapted_fraction": streams.get("adapted_fraction"),
-            "frames_per_s": streams["frames_per_s"], "floor_frames_per_s": floor["frames_per_s"]}  # fmt: skip
+    out = {"server_cpu_us_per_frame": ours, "floor_server_cpu_us_per_frame": base,
+           "ratio": ours / base, "target_ratio": FLEET_TARGET,
+           "adapted_fraction": streams.get("adapted_fraction"),
+           "frames_per_s": streams["frames_per_s"], "floor_frames_per_s": floor["frames_per_s"]}  # fmt: skip
+    if compute is not None:
+        out["compute"] = compute
+        out["lower_bound_ratio"] = lower_bound_ratio(compute["compute_us_per_frame"], base)
+    return out
 
 
 if __name__ == "__main__":
