@@ -71,7 +71,7 @@ def fleet_efficiency(streams: dict[str, Any], floor: dict[str, Any],
     """gridplace's server CPU per stream frame against the do-nothing server's, same run; with
     ``compute`` (:func:`service.bench.fleet_bound.compute_per_frame` of the same map and
     fleet), the least ratio any server on this transport could reach with that work."""
-    from service.bench.fleet_bound import lower_bound_ratio
+    from service.bench.fleet_bound import lower_bound_ratio  # not in the floor server's process
 
     ours, base = streams["server_cpu_us_per_frame"], floor["server_cpu_us_per_frame"]
     out = {"server_cpu_us_per_frame": ours, "floor_server_cpu_us_per_frame": base,
