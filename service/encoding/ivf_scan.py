@@ -19,11 +19,15 @@ log-softmax over the candidates.
   slice of pair arrays (the pairs are sorted by list), and the pairs of a query are merged at
   the end in one vectorised step. A list scores at most :data:`LIST_SCORES` (frame, query)
   pairs at a time, so a huge list (a model trained with very few lists) stays bounded.
+  The rows' scales and biases are read from copies in list order (:class:`ListOrder`, made
+  once per served map: 12 bytes a frame), slices instead of two gathers per list (4 % of a
+  batch at 1M frames).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -46,6 +50,25 @@ class Scorer(Protocol):
     rowscale: np.ndarray | None
     bias: np.ndarray  # (N,) float64
     beta: float
+
+
+@dataclass(frozen=True)
+class ListOrder:
+    """A digit's row scales and biases in the order of an inverted file's ``members`` (the
+    array itself is kept: a search with lists of other members ignores these copies)."""
+
+    rowscale: np.ndarray | None  # (N,) float32
+    bias: np.ndarray  # (N,) float64
+    members: np.ndarray = field(repr=False, compare=False)
+
+    @classmethod
+    def of(cls, ivf: InvertedFile, dg: Scorer) -> ListOrder:
+        scale = None if dg.rowscale is None else np.ascontiguousarray(dg.rowscale[ivf.members])
+        return cls(scale, np.ascontiguousarray(dg.bias[ivf.members]), ivf.members)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.bias.nbytes + (0 if self.rowscale is None else self.rowscale.nbytes))
 
 
 def _finish(dg: Scorer, prod: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -97,10 +120,11 @@ def _one_query_products(dg: Scorer, z: np.ndarray, ids: np.ndarray) -> np.ndarra
     return out
 
 
-def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
-           nprobe: int | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray, nprobe: int | None = None,
+           order: ListOrder | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Best frame and its log-softmax over the candidates for every float32 row of ``Zc``
-    ``(n, m)``."""
+    ``(n, m)`` (a batch reads scales and biases from ``order`` when given: the same
+    arithmetic, so the same answers)."""
     lists = ivf.lists(Zc, nprobe)
     if Zc.shape[0] == 1:
         ids = ivf.candidates(lists[0])
@@ -109,11 +133,12 @@ def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
         win = int(ids[S == best].min())  # the lowest frame on ties, as the flat scan
         lse = math.log(float(np.exp(S - best).sum()))
         return np.array([win], dtype=np.int64), np.array([-lse])
-    return _batch(ivf, dg, Zc, lists)
+    return _batch(ivf, dg, Zc, lists,
+                  order if order is not None and order.members is ivf.members else None)
 
 
-def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
-           lists: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray, lists: np.ndarray,
+           by_list: ListOrder | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     n, p = lists.shape
     flat = lists.ravel()
     order = np.argsort(flat, kind="stable")
@@ -139,7 +164,14 @@ def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray,
             zt = np.ascontiguousarray(Zc.take(queries[qs:qe], axis=0).T)  # (m, queries)
             prod = np.empty((b - a, qe - qs), dtype=np.float32)
             _products(W, ids, zt, gathered, wide, prod)
-            S = _finish(dg, prod, ids)
+            if by_list is None:
+                S = _finish(dg, prod, ids)
+            else:  # _finish's arithmetic on slices of the list-order copies
+                if by_list.rowscale is not None:
+                    prod *= by_list.rowscale[a:b, None]
+                S = prod + by_list.bias[a:b, None]
+                if dg.beta != 1.0:
+                    S *= dg.beta
             top = S.argmax(axis=0)  # the first best: the lowest frame (ascending in a list)
             bm = S[top, np.arange(qe - qs)]
             S -= bm

@@ -33,6 +33,7 @@ from service.encoding.exact_decode import (
     table_decode,
 )
 from service.encoding.inverted_file import InvertedFile, Search
+from service.encoding.ivf_scan import ListOrder
 from service.encoding.ivf_scan import search as ivf_search
 from service.encoding.phases import index_to_labels
 from service.encoding.residue_decode import residue_decode
@@ -96,6 +97,10 @@ class ServingPlan:
         ivf = getattr(model, "ivf_", None)  # one class per frame only (one phase, one digit)
         one_class = self.chunk is None and len(self.phases[0].digits) == 1
         self.ivf: InvertedFile | None = ivf if one_class else None
+        #: the digit's scales and biases in list order, read by a batch's scan of the lists
+        self._by_list = None
+        if self.ivf is not None and not self.ivf.probes_everything:
+            self._by_list = ListOrder.of(self.ivf, self.phases[0].digits[0])
 
     # -- helpers --------------------------------------------------------------------
     def normalise(self, Q: np.ndarray, dtype: type = np.float64) -> np.ndarray:
@@ -159,7 +164,7 @@ class ServingPlan:
         if ivf is not None and precision == "float32" and search != "flat":
             dg = self.phases[0].digits[0]
             Zc = np.ascontiguousarray(self.normalise(Q, np.float32).take(dg.columns, axis=1))
-            index, log_score = ivf_search(ivf, dg, Zc)
+            index, log_score = ivf_search(ivf, dg, Zc, order=self._by_list)
             n = Q.shape[0]
             return Decoded(index, np.zeros(n, np.int64), log_score, np.zeros(n, bool))
         rows = max(1, _BLOCK_SCORES // max(1, self.top * self.k * self.width))

@@ -16,7 +16,7 @@ from service.encoding import inverted_file
 from service.encoding.inverted_file import (DEFAULT_NPROBE, GEMM_RANK_ROWS, MIN_CANDIDATES,
                                             InvertedFile, default_nlist, default_nprobe)
 from service.encoding import ivf_scan
-from service.encoding.ivf_scan import search
+from service.encoding.ivf_scan import ListOrder, search
 from service.encoding.quantization import QuantizedLinear, int8_products, int8_products64
 from service.encoding.serving_plan import DigitBlock, ServingPlan, plan_for
 from service.encoding.synthetic import smooth_route
@@ -80,6 +80,9 @@ def _every_list_is_the_flat_scan(n: int, m: int, nlist: int, seed: int, n_querie
     index, score = search(ivf, rows, Z)
     np.testing.assert_array_equal(index, want_index)
     np.testing.assert_allclose(score, want_score, rtol=1e-5, atol=1e-5)
+    by_list = search(ivf, rows, Z, order=ListOrder.of(ivf, rows))  # the same arithmetic
+    np.testing.assert_array_equal(by_list[0], index)
+    np.testing.assert_array_equal(by_list[1], score)
     for i in range(n_queries):  # the one-query path answers as the batch path
         one, one_score = search(ivf, rows, Z[i : i + 1])
         assert one[0] == index[i]
@@ -96,6 +99,9 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
     Z = rng.standard_normal((5, 8)).astype(np.float32)
     index, score = search(ivf, rows, Z)
     single = [search(ivf, rows, Z[i : i + 1]) for i in range(5)]
+    by_list = search(ivf, rows, Z, order=ListOrder.of(ivf, rows))
+    np.testing.assert_array_equal(by_list[0], index)
+    np.testing.assert_array_equal(by_list[1], score)
     assert ivf.most_scored(ivf.nlist) == ivf.nlist + n  # every list: every frame, centroids too
     for i, lists in enumerate(ivf.lists(Z)):
         cand = np.sort(ivf.candidates(lists))
@@ -107,6 +113,31 @@ def test_a_partial_probe_answers_the_best_of_its_lists(n: int, nprobe: int, seed
         S = ((Z[i] @ rows.weight.astype(np.float32).T) * rows.rowscale).astype(np.float64)
         flat_lp = S[index[i]] - S.max() - np.log(np.exp(S - S.max()).sum())
         assert score[i] >= flat_lp - 1e-5  # an upper bound of the frame's flat log-softmax
+
+
+def test_list_order_copies_of_another_partition_are_not_used() -> None:
+    rng = np.random.default_rng(5)
+    n = 300
+    rows = Rows(rng.integers(-127, 128, (n, 8)).astype(np.int8),
+                rng.uniform(0.001, 0.01, n).astype(np.float32), rng.normal(0, 0.1, n), 20.0)
+    ivf = InvertedFile.fit(rows.weight, rows.rowscale, 12, nprobe=3, seed=0)
+    other = InvertedFile.fit(rows.weight, rows.rowscale, 7, nprobe=3, seed=1)
+    Z = rng.standard_normal((20, 8)).astype(np.float32)
+    want = search(ivf, rows, Z)
+    stale = ListOrder.of(other, rows)  # scales and biases in another file's order
+    got = search(ivf, rows, Z, order=stale)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert ListOrder.of(ivf, rows).nbytes == n * (4 + 8)
+
+
+def test_the_plan_keeps_list_order_copies_only_for_a_partial_probe() -> None:
+    route = smooth_route(600, 32, seed=2)
+    partial = plan_for(robust(search="ivf", nprobe=3).fit(route.reference))
+    assert partial._by_list is not None and partial.ivf is not None
+    assert partial._by_list.members is partial.ivf.members
+    every = plan_for(robust(search="ivf", nlist=5, nprobe=5).fit(route.reference))
+    assert every._by_list is None  # served by the flat scan
 
 
 @settings(max_examples=30, deadline=None)
