@@ -118,17 +118,24 @@ class CodeScorer:
         phase = plan.phases[0]
         self.digits = phase.digits
         self.n_frames = int(phase.n_frames)
-        labels = phase.labels
-        if labels is None:
-            labels = index_to_labels(np.arange(self.n_frames), phase.periods)
-        self.labels = np.ascontiguousarray(np.asarray(labels).T, dtype=np.int32)  # (k, N)
+        #: a residue code's labels ``f mod τ_j`` and its classes' frames ``c, c + τ_j, …`` are
+        #: computed; other codes keep a ``(k, N)`` table and each class's frames in order
+        self.periods: tuple[int, ...] | None = tuple(phase.periods) if phase.residue else None
+        self.labels: np.ndarray | None = None
+        self.order: list[np.ndarray] = []
+        self.starts: list[np.ndarray] = []
+        if self.periods is None:
+            labels = phase.labels
+            if labels is None:
+                labels = index_to_labels(np.arange(self.n_frames), phase.periods)
+            self.labels = np.ascontiguousarray(np.asarray(labels).T, dtype=np.int32)  # (k, N)
+            # frames of each class, per digit: order[j][starts[j][c]:starts[j][c + 1]]
+            self.order = [np.argsort(lab, kind="stable").astype(np.int32) for lab in self.labels]
+            self.starts = [
+                np.searchsorted(lab[o], np.arange(dg.n_classes + 1))
+                for lab, o, dg in zip(self.labels, self.order, self.digits, strict=True)
+            ]
         self.sample = route_sample(self.n_frames)
-        # frames of each class, per digit: order[j][starts[j][c]:starts[j][c + 1]]
-        self.order = [np.argsort(lab, kind="stable").astype(np.int32) for lab in self.labels]
-        self.starts = [
-            np.searchsorted(lab[o], np.arange(dg.n_classes + 1))
-            for lab, o, dg in zip(self.labels, self.order, self.digits, strict=True)
-        ]
         # the sample's classes per digit (and those of the frames after them, for the repetition
         # test), their rows gathered once: a query's spread over the route is one small
         # contiguous product per digit, not a gather across the whole code
@@ -136,7 +143,27 @@ class CodeScorer:
         self._next = self._gathered(successors(self.sample, self.n_frames))
 
     def _gathered(self, frames: np.ndarray) -> list[_Rows]:
-        return [_Rows.of(dg, lab[frames]) for dg, lab in zip(self.digits, self.labels, strict=True)]
+        return [_Rows.of(dg, self._labels(j, frames)) for j, dg in enumerate(self.digits)]
+
+    def _labels(self, j: int, frames: np.ndarray) -> np.ndarray:
+        """Digit ``j``'s class of each frame of ``frames``."""
+        if self.periods is not None:
+            return np.asarray(frames, dtype=np.int64) % self.periods[j]
+        assert self.labels is not None
+        return self.labels[j, frames]
+
+    def _route(self, j: int, scores: np.ndarray) -> np.ndarray:
+        """Every frame's score of digit ``j`` from its class scores ``scores`` (a new array)."""
+        if self.periods is not None:
+            return np.resize(scores, self.n_frames)  # repeated: frame f gets scores[f mod τ_j]
+        assert self.labels is not None
+        return scores[self.labels[j]]
+
+    def _class_frames(self, j: int, c: int) -> np.ndarray:
+        """The frames of digit ``j``'s class ``c``, ascending."""
+        if self.periods is not None:
+            return np.arange(c, self.n_frames, self.periods[j])
+        return self.order[j][self.starts[j][c] : self.starts[j][c + 1]]
 
     @property
     def check_cost(self) -> int:
@@ -170,7 +197,7 @@ class CodeScorer:
     def frames(self, prep: Any, idx: np.ndarray) -> np.ndarray:
         out = np.zeros(len(idx))
         for j in range(len(self.digits)):
-            lab = self.labels[j, idx]
+            lab = self._labels(j, idx)
             if prep.full[j] is None:  # only the classes asked for: O(window), not O(Στ)
                 if lab.size <= self.digits[j].n_classes:  # no more rows than the code has:
                     out += self._classes(prep, j, lab)  # a repeated class costs less than a sort
@@ -182,10 +209,10 @@ class CodeScorer:
         return out
 
     def full(self, prep: Any) -> np.ndarray:
-        out = self._all(prep, 0)[self.labels[0]]
+        out = self._route(0, self._all(prep, 0))
         for j in range(1, len(self.digits)):
-            out += self._all(prep, j)[self.labels[j]]
-        return out  # type: ignore[no-any-return]
+            out += self._route(j, self._all(prep, j))
+        return out
 
     def sample_scores(self, prep: Any) -> np.ndarray:
         """Scores of the route's sample frames (:func:`route_sample`), computed once per query
@@ -218,7 +245,7 @@ class CodeScorer:
             s = self._all(prep, j)
             t = min(TOP_CLASSES, s.size)
             top = np.argpartition(-s, t - 1)[:t]
-            pools += [self.order[j][self.starts[j][c] : self.starts[j][c + 1]] for c in top]
+            pools += [self._class_frames(j, int(c)) for c in top]
         pool = np.unique(np.concatenate(pools))
         s = self.frames(prep, pool)
         m = min(m, pool.size)

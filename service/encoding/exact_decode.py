@@ -130,3 +130,12 @@ def frame_scores_table(lp: np.ndarray, labels: np.ndarray) -> np.ndarray:
     for j in range(labels.shape[1]):
         out += lp[:, j, labels[:, j]]
     return out
+
+
+def frame_scores_residue(lp: np.ndarray, periods: tuple[int, ...], n_frames: int) -> np.ndarray:
+    """``(P, N)`` scores of every frame labelled ``f mod τ_j``: :func:`frame_scores_table` of
+    that table (the same sums in the same order), without the ``(N, k)`` table."""
+    out = np.zeros((lp.shape[0], n_frames))
+    for j, t in enumerate(periods):
+        out += np.tile(lp[:, j, :t], (1, -(-n_frames // t)))[:, :n_frames]
+    return out

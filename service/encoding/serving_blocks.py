@@ -148,9 +148,25 @@ class PhaseBlock:
     n_frames: int
     place: np.ndarray  # (k,) int64 place values of the mixed-radix code
     last: np.ndarray  # (k,) int64 digits of N − 1
-    labels: np.ndarray | None  # (N, k) label table when not pure mixed radix
+    #: (N, k) label table when the labels are neither mixed radix nor residues (a residue
+    #: code's labels ``f mod τ_j`` are computed, not stored: 16 bytes a frame at k = 2)
+    labels: np.ndarray | None
     error: float  # Σ_j 2·error_j: frame-score error per unit of ‖z‖
-    residue: bool = False  # the table is ``f mod τ_j``: decoded by branch and bound
+    residue: bool = False  # labels ``f mod τ_j``: decoded by branch and bound
+
+    @property
+    def tabled(self) -> bool:
+        """Whether frames are labelled otherwise than by the mixed radix of the periods."""
+        return self.labels is not None or self.residue
+
+    def frame_labels(self, frames: np.ndarray) -> np.ndarray:
+        """``(len(frames), k)`` digit labels of the frames ``frames``."""
+        frames = np.asarray(frames, dtype=np.int64)
+        if self.residue:
+            return frames[:, None] % np.asarray(self.periods, dtype=np.int64)
+        if self.labels is not None:
+            return self.labels[frames]
+        return np.asarray(index_to_labels(frames, self.periods), dtype=np.int64)
 
     @classmethod
     def of(cls, encoder: Any) -> PhaseBlock:
@@ -162,7 +178,7 @@ class PhaseBlock:
         last = index_to_labels([n - 1], periods)[0] if labels is None else labels[-1]
         residue = labels is not None and is_residue_table(labels, last_periods)
         return cls(digits, last_periods, n, place_values(periods), np.asarray(last, np.int64),
-                   labels, 2.0 * sum(d.error for d in digits), residue)  # fmt: skip
+                   None if residue else labels, 2.0 * sum(d.error for d in digits), residue)  # fmt: skip
 
     @property
     def width(self) -> int:

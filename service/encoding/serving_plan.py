@@ -28,6 +28,7 @@ from service.encoding.exact_decode import (
     FreeDecode,
     constrained_decode,
     frame_scores_mixed_radix,
+    frame_scores_residue,
     frame_scores_table,
     free_decode,
     table_decode,
@@ -84,7 +85,7 @@ class ServingPlan:
         self._place = np.zeros((len(self.phases), self.k), dtype=np.int64)
         self._last = np.zeros((len(self.phases), self.k), dtype=np.int64)
         for c, p in enumerate(self.phases):
-            self._place[c, : len(p.digits)] = p.place if p.labels is None else 0
+            self._place[c, : len(p.digits)] = 0 if p.tabled else p.place
             self._last[c, : len(p.digits)] = p.last
         self._sizes = np.diff(self.bounds)
         self._error = np.array([p.error for p in self.phases])
@@ -92,7 +93,7 @@ class ServingPlan:
         for c, p in enumerate(self.phases):
             self._digit_error[c, : len(p.digits)] = [d.error for d in p.digits]
         self._chunk_error = 0.0 if self.chunk is None else 2.0 * self.chunk.error
-        self._tables = any(p.labels is not None or len(p.digits) != self.k for p in self.phases)
+        self._tables = any(p.tabled or len(p.digits) != self.k for p in self.phases)
         self._single = SingleQueryPath.of(self)
         ivf = getattr(model, "ivf_", None)  # one class per frame only (one phase, one digit)
         one_class = self.chunk is None and len(self.phases[0].digits) == 1
@@ -245,7 +246,7 @@ class ServingPlan:
                        stable: np.ndarray | None) -> None:  # fmt: skip
         """Pairs whose chunk has a label table (or fewer digits): enumerate its frames."""
         for c, phase in enumerate(self.phases):
-            if phase.labels is None and len(phase.digits) == self.k:
+            if not phase.tabled and len(phase.digits) == self.k:
                 continue
             rows = np.flatnonzero(pc == c)
             if rows.size == 0:
@@ -293,6 +294,8 @@ class ServingPlan:
         lp = np.full((Z.shape[0], len(phase.digits), phase.width), -np.inf)
         for j, dg in enumerate(phase.digits):
             lp[:, j, : dg.n_classes] = dg.log_probs64(Z)
+        if phase.residue:
+            return frame_scores_residue(lp, phase.periods, phase.n_frames)
         if phase.labels is None:
             return frame_scores_mixed_radix(lp, phase.periods, phase.n_frames)
         return frame_scores_table(lp, phase.labels)

@@ -4,6 +4,7 @@ and loaded bit-identically, tracked by the code scorer (SYNTHETIC routes)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,10 +13,12 @@ from hypothesis import strategies as st
 
 from service.encoding.artifacts import load_model, save_model
 from service.encoding.drive_scoring import CodeScorer, drive_scorer
+from service.encoding.exact_decode import frame_scores_residue, frame_scores_table
 from service.encoding.factory import ModelParams, build_model
 from service.encoding.quantization import QuantizedLinear
 from service.encoding.residue import code_sum, residue_periods
 from service.encoding.sequence import sequence_localize
+from service.encoding.serving_plan import plan_for
 from service.encoding.synthetic import smooth_route
 
 
@@ -60,3 +63,44 @@ def test_the_drive_preset_saves_loads_and_tracks(tmp_path: Path) -> None:
     assert drive > 0.95 and drive > single, (single, drive)
     encoders = loaded.footprint().to_dict()["components"]["encoders"]["actual_bytes"]
     assert encoders <= sum(model.periods_) * (128 // 8) + 2 * 4 * 128 + 64
+
+
+class _TablePlan:
+    """The plan of a residue model with its labels given as a stored table instead."""
+
+    def __init__(self, plan: object) -> None:
+        phase = plan.phases[0]  # type: ignore[attr-defined]
+        table = phase.frame_labels(np.arange(phase.n_frames))
+        self.phases = [replace(phase, labels=table, residue=False)]
+        self.normalise = plan.normalise  # type: ignore[attr-defined]
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(30, 900), seed=st.integers(0, 2**16))
+def test_computed_residue_labels_score_as_a_stored_table(n: int, seed: int) -> None:
+    route = smooth_route(n, 16, query_noise=0.4, seed=seed)  # SYNTHETIC
+    model = build_model(ModelParams(encoder_preset="drive")).fit(route.reference)
+    plan = plan_for(model)
+    phase = plan.phases[0]
+    if len(phase.digits) < 2:  # a route this short may get one digit: mixed radix, no residue
+        return
+    assert phase.residue and phase.labels is None  # no (N, k) table is kept
+    frames = np.arange(n)
+    np.testing.assert_array_equal(phase.frame_labels(frames),
+                                  frames[:, None] % np.asarray(phase.periods))  # fmt: skip
+    computed, stored = CodeScorer(model, plan), CodeScorer(model, _TablePlan(plan))
+    assert computed.labels is None and not computed.order and stored.labels is not None
+    Q = route.query[np.random.default_rng(seed).integers(0, n, 3)]
+    rng = np.random.default_rng(seed)
+    for a, b in zip(computed.prepare_many(Q), stored.prepare_many(Q), strict=True):
+        idx = rng.integers(0, n, 40)
+        np.testing.assert_array_equal(computed.frames(a, idx), stored.frames(b, idx))
+        np.testing.assert_array_equal(computed.sample_scores(a), stored.sample_scores(b))
+        np.testing.assert_array_equal(computed.next_scores(a), stored.next_scores(b))
+        np.testing.assert_array_equal(computed.candidates(a, 7), stored.candidates(b, 7))
+        np.testing.assert_array_equal(computed.full(a), stored.full(b))
+        np.testing.assert_array_equal(computed.frames(a, idx), stored.frames(b, idx))  # full now
+    table = phase.frame_labels(frames)
+    lp = np.random.default_rng(seed).standard_normal((4, len(phase.digits), phase.width))
+    np.testing.assert_array_equal(frame_scores_residue(lp, phase.periods, n),
+                                  frame_scores_table(lp, table))  # fmt: skip
