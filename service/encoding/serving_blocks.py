@@ -79,10 +79,11 @@ class DigitBlock:
                        rowscale=lin.scale.astype(np.float32))  # fmt: skip
         W = lin.weight
         if lin.width is not None:  # binary: the signs times the column widths
-            W = lin.dequantized()[0]
-        elif lin.scale is not None:
-            W = W.astype(np.float64) * lin.scale.astype(np.float64)[:, None]
-        W32 = np.ascontiguousarray(W, dtype=np.float32)
+            W32 = _binary_float32(lin.weight, lin.width)
+        else:
+            if lin.scale is not None:
+                W = W.astype(np.float64) * lin.scale.astype(np.float64)[:, None]
+            W32 = np.ascontiguousarray(W, dtype=np.float32)
         norm = float(np.sqrt(np.einsum("ij,ij->i", W32, W32, dtype=np.float64)).max(initial=0.0))
         return cls(columns, W32, bias, lin, beta,
                    _kappa(W32.shape[1]) * norm * 1.001 * beta)  # fmt: skip
@@ -173,6 +174,10 @@ class PhaseBlock:
         periods = tuple(int(p) for p in encoder.periods_)
         digits = tuple(DigitBlock.of(dc) for dc in encoder.digits_)
         n = int(encoder.n_frames_)
+        if _residue_code(encoder, periods, digits):  # no (N, k) table is made, even for a check
+            last = np.asarray(periods, dtype=np.int64)
+            return cls(digits, periods, n, place_values(periods), (n - 1) % last, None,
+                       2.0 * sum(d.error for d in digits), True)  # fmt: skip
         labels = _label_table(encoder, periods, n, len(digits))
         last_periods = periods if labels is None else tuple(d.n_classes for d in digits)
         last = index_to_labels([n - 1], periods)[0] if labels is None else labels[-1]
@@ -183,6 +188,25 @@ class PhaseBlock:
     @property
     def width(self) -> int:
         return max(d.n_classes for d in self.digits)
+
+
+def _binary_float32(packed: np.ndarray, width: np.ndarray, rows: int = 4096) -> np.ndarray:
+    """Float32 ``±width`` of packed sign bits ``(n, ⌈d'/8⌉)``, a block of rows at a time: the
+    stored form's float64 weights rounded to float32 (negation is exact), without making
+    them (a binary code of 22,000 classes × 128 columns is 22.5 MB in float64)."""
+    w = np.asarray(width, dtype=np.float64).astype(np.float32)
+    out = np.empty((packed.shape[0], w.size), dtype=np.float32)
+    for s in range(0, packed.shape[0], rows):
+        bits = np.unpackbits(packed[s : s + rows], axis=1, count=w.size)
+        np.copyto(out[s : s + rows], np.where(bits.astype(bool), w, -w))
+    return out
+
+
+def _residue_code(encoder: Any, periods: tuple[int, ...], digits: tuple[DigitBlock, ...]) -> bool:
+    """Whether ``encoder`` labels frames ``f mod τ_j`` with one class per residue, on two digits
+    or more (where residues never coincide with the mixed radix of the periods)."""
+    return (getattr(encoder, "code", None) == "residue" and len(digits) == len(periods) >= 2
+            and all(d.n_classes == t >= 2 for d, t in zip(digits, periods, strict=True)))  # fmt: skip
 
 
 def _label_table(encoder: Any, periods: tuple[int, ...], n: int, k: int) -> np.ndarray | None:

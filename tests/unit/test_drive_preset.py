@@ -18,6 +18,7 @@ from service.encoding.factory import ModelParams, build_model
 from service.encoding.quantization import QuantizedLinear
 from service.encoding.residue import code_sum, residue_periods
 from service.encoding.sequence import sequence_localize
+from service.encoding.serving_blocks import _binary_float32
 from service.encoding.serving_plan import plan_for
 from service.encoding.synthetic import smooth_route
 
@@ -104,3 +105,17 @@ def test_computed_residue_labels_score_as_a_stored_table(n: int, seed: int) -> N
     lp = np.random.default_rng(seed).standard_normal((4, len(phase.digits), phase.width))
     np.testing.assert_array_equal(frame_scores_residue(lp, phase.periods, n),
                                   frame_scores_table(lp, table))  # fmt: skip
+
+
+@settings(max_examples=25, deadline=None)
+@given(rows=st.integers(1, 300), cols=st.integers(1, 40), block=st.integers(1, 64),
+       seed=st.integers(0, 2**16))  # fmt: skip
+def test_binary_weights_widen_to_float32_as_the_stored_form_defines_them(
+    rows: int, cols: int, block: int, seed: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    W = rng.standard_normal((rows, cols))
+    lin = QuantizedLinear.from_dense(W, np.zeros(rows), "binary")
+    got = _binary_float32(lin.weight, lin.width, block)
+    assert got.dtype == np.float32 and got.shape == (rows, cols)
+    np.testing.assert_array_equal(got, lin.dequantized()[0].astype(np.float32))

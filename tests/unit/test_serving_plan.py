@@ -326,6 +326,11 @@ def test_residue_codes_decode_the_best_frame_exactly(
     phase = plan_for(model).phases[0]
     assert phase.tabled or len(periods) == 1
     assert phase.labels is None if phase.residue else True  # residues are computed, not stored
+    if phase.residue:  # what the table would have given, without making it
+        table = model.frame_labels_()
+        np.testing.assert_array_equal(phase.frame_labels(np.arange(n)), table)
+        np.testing.assert_array_equal(phase.last, table[-1])
+        assert phase.periods == tuple(d.n_classes for d in phase.digits)
     Q = np.concatenate([route.query, np.random.default_rng(seed).standard_normal((10, 12)) * 3])
     check_exact(model, Q.astype(np.float64))
     np.testing.assert_allclose(model.frame_log_scores(Q[:8]), brute_force(model, Q[:8]), rtol=1e-12)
