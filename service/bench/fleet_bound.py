@@ -57,7 +57,8 @@ def compute_per_frame(model: Any, queries: np.ndarray, n_streams: int, window: i
                 break
     adapt_us, localize_us = 1e6 * best_adapt / size, 1e6 * best_localize / size
     return {"batch": size, "adapted": adapt, "adapt_us_per_frame": adapt_us,
-            "localize_us_per_frame": localize_us, "compute_us_per_frame": adapt_us + localize_us}  # fmt: skip
+            "localize_us_per_frame": localize_us,
+            "compute_us_per_frame": adapt_us + localize_us}  # fmt: skip
 
 
 def lower_bound_ratio(compute_us: float, floor_us: float) -> float:

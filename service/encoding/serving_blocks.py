@@ -174,7 +174,7 @@ class PhaseBlock:
         periods = tuple(int(p) for p in encoder.periods_)
         digits = tuple(DigitBlock.of(dc) for dc in encoder.digits_)
         n = int(encoder.n_frames_)
-        if _residue_code(encoder, periods, digits):  # no (N, k) table is made, even for a check
+        if n >= 2 and _residue_code(encoder, periods, digits):  # no (N, k) table, even to check
             last = np.asarray(periods, dtype=np.int64)
             return cls(digits, periods, n, place_values(periods), (n - 1) % last, None,
                        2.0 * sum(d.error for d in digits), True)  # fmt: skip
@@ -183,7 +183,8 @@ class PhaseBlock:
         last = index_to_labels([n - 1], periods)[0] if labels is None else labels[-1]
         residue = labels is not None and is_residue_table(labels, last_periods)
         return cls(digits, last_periods, n, place_values(periods), np.asarray(last, np.int64),
-                   None if residue else labels, 2.0 * sum(d.error for d in digits), residue)  # fmt: skip
+                   None if residue else labels, 2.0 * sum(d.error for d in digits),
+                   residue)  # fmt: skip
 
     @property
     def width(self) -> int:
@@ -204,9 +205,10 @@ def _binary_float32(packed: np.ndarray, width: np.ndarray, rows: int = 4096) -> 
 
 def _residue_code(encoder: Any, periods: tuple[int, ...], digits: tuple[DigitBlock, ...]) -> bool:
     """Whether ``encoder`` labels frames ``f mod τ_j`` with one class per residue, on two digits
-    or more (where residues never coincide with the mixed radix of the periods)."""
-    return (getattr(encoder, "code", None) == "residue" and len(digits) == len(periods) >= 2
-            and all(d.n_classes == t >= 2 for d, t in zip(digits, periods, strict=True)))  # fmt: skip
+    or more (where, from two frames on, residues never coincide with the periods' mixed radix)."""
+    if getattr(encoder, "code", None) != "residue" or not len(digits) == len(periods) >= 2:
+        return False
+    return all(d.n_classes == t >= 2 for d, t in zip(digits, periods, strict=True))
 
 
 def _label_table(encoder: Any, periods: tuple[int, ...], n: int, k: int) -> np.ndarray | None:
