@@ -70,14 +70,24 @@ class ListOrder:
     def nbytes(self) -> int:
         return int(self.bias.nbytes + (0 if self.rowscale is None else self.rowscale.nbytes))
 
+    def rows(self, a: int, b: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """Scales and biases of the frames ``members[a:b]`` (slices, no copy)."""
+        return None if self.rowscale is None else self.rowscale[a:b], self.bias[a:b]
 
-def _finish(dg: Scorer, prod: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Float64 scores from float32 products ``prod`` (``(len(ids), ...)``: a row per frame,
-    scaled in place)."""
-    col = (ids.size,) + (1,) * (prod.ndim - 1)
-    if dg.rowscale is not None:
-        prod *= dg.rowscale[ids].reshape(col)
-    S = prod + dg.bias[ids].reshape(col)
+
+def _gathered(dg: Scorer, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """Scales and biases of the frames ``ids``, gathered from the digit's own arrays."""
+    return None if dg.rowscale is None else dg.rowscale[ids], dg.bias[ids]
+
+
+def _finish(dg: Scorer, prod: np.ndarray, rowscale: np.ndarray | None,
+            bias: np.ndarray) -> np.ndarray:  # fmt: skip
+    """Float64 scores from float32 products ``prod`` (``(frames, ...)``: a row per frame,
+    scaled in place) and those frames' scales (``None``: unscaled rows) and biases."""
+    col = (bias.size,) + (1,) * (prod.ndim - 1)
+    if rowscale is not None:
+        prod *= rowscale.reshape(col)
+    S = prod + bias.reshape(col)
     if dg.beta != 1.0:
         S *= dg.beta
     return S
@@ -128,7 +138,7 @@ def search(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray, nprobe: int | None = N
     lists = ivf.lists(Zc, nprobe)
     if Zc.shape[0] == 1:
         ids = ivf.candidates(lists[0])
-        S = _finish(dg, _one_query_products(dg, Zc[0], ids), ids)
+        S = _finish(dg, _one_query_products(dg, Zc[0], ids), *_gathered(dg, ids))
         best = float(S.max())
         win = int(ids[S == best].min())  # the lowest frame on ties, as the flat scan
         lse = math.log(float(np.exp(S - best).sum()))
@@ -164,14 +174,7 @@ def _batch(ivf: InvertedFile, dg: Scorer, Zc: np.ndarray, lists: np.ndarray,
             zt = np.ascontiguousarray(Zc.take(queries[qs:qe], axis=0).T)  # (m, queries)
             prod = np.empty((b - a, qe - qs), dtype=np.float32)
             _products(W, ids, zt, gathered, wide, prod)
-            if by_list is None:
-                S = _finish(dg, prod, ids)
-            else:  # _finish's arithmetic on slices of the list-order copies
-                if by_list.rowscale is not None:
-                    prod *= by_list.rowscale[a:b, None]
-                S = prod + by_list.bias[a:b, None]
-                if dg.beta != 1.0:
-                    S *= dg.beta
+            S = _finish(dg, prod, *(_gathered(dg, ids) if by_list is None else by_list.rows(a, b)))
             top = S.argmax(axis=0)  # the first best: the lowest frame (ascending in a list)
             bm = S[top, np.arange(qe - qs)]
             S -= bm

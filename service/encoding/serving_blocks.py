@@ -175,8 +175,8 @@ class PhaseBlock:
         digits = tuple(DigitBlock.of(dc) for dc in encoder.digits_)
         n = int(encoder.n_frames_)
         if n >= 2 and _residue_code(encoder, periods, digits):  # no (N, k) table, even to check
-            last = np.asarray(periods, dtype=np.int64)
-            return cls(digits, periods, n, place_values(periods), (n - 1) % last, None,
+            last = (n - 1) % np.asarray(periods, dtype=np.int64)
+            return cls(digits, periods, n, place_values(periods), last, None,
                        2.0 * sum(d.error for d in digits), True)  # fmt: skip
         labels = _label_table(encoder, periods, n, len(digits))
         last_periods = periods if labels is None else tuple(d.n_classes for d in digits)
